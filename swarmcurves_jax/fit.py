@@ -1,0 +1,334 @@
+"""``fit``: every (degree, n) swarm of a call, run as one compiled XLA program."""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import pso
+from ._validation import (
+    check_pairs,
+    check_points,
+    check_positive_int,
+    check_tol,
+    check_weight_bounds,
+)
+from .curves import Curve
+from .fitness import SampleBasis, make_sample_basis, mean_distance
+from .knots import make_knots
+from .projection import project_points
+from .results import FitResult
+
+__all__ = ["fit", "normalise", "default_num_samples"]
+
+
+def normalise(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """SPEC §1 normalisation: ``(points - c) / s`` inside ``[-1, 1]^D``, aspect kept."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    center = (lo + hi) / 2
+    scale = float(np.max(hi - lo) / 2)
+    if not scale > 0:
+        raise ValueError("points must not all coincide: their bounding box is a single point")
+    return (points - center) / scale, center, scale
+
+
+def default_num_samples(pairs, closed: bool) -> int:
+    """Fitness samples per curve: about 6 per knot span, a multiple of 64.
+
+    The fitness's Newton step removes the sampling floor, so a few samples per span
+    suffice; more only cost time (``benchmarks/tune_pso.py`` measures both).
+    """
+    spans = max(n if closed else n - k for k, n in pairs)
+    return int(64 * math.ceil(6 * spans / 64))
+
+
+class _Space(NamedTuple):
+    """Static layout of a particle's flat position: ``n_pad`` points of ``dim`` coords,
+    then ``n_pad`` log-weights when rational."""
+
+    n_pad: int
+    dim: int
+    rational: bool
+
+
+def _decode(q: jax.Array, space: _Space):
+    ctrl = q[: space.n_pad * space.dim].reshape(space.n_pad, space.dim)
+    if not space.rational:
+        return ctrl, None
+    return ctrl, jnp.exp(q[space.n_pad * space.dim :])
+
+
+def _particle_fitness(q, basis, points, space):
+    ctrl, weights = _decode(q, space)
+    return mean_distance(ctrl, weights, basis, points)
+
+
+@functools.partial(jax.jit, static_argnames=("space", "num_particles", "num_steps"))
+def _swarm_program(keys, state, params, boxes, bases, points, tol, max_steps, *, space,
+                   num_particles, num_steps):
+    """Run ``num_steps`` PSO steps of every swarm; swarms whose ``step`` is 0 start fresh."""
+
+    def one_swarm(key, state, box, basis):
+        init_key, run_key = jax.random.split(key)
+        fresh = pso.init(init_key, box, num_particles)
+        state = jax.tree_util.tree_map(
+            lambda a, b: jnp.where(state.step == 0, a, b), fresh, state
+        )
+        fitness_fn = jax.vmap(lambda q: _particle_fitness(q, basis, points, space))
+        return pso.run(run_key, state, params, box, fitness_fn, num_steps, tol, max_steps)
+
+    return jax.vmap(one_swarm)(keys, state, boxes, bases)
+
+
+def _empty_state(num_swarms, num_particles, dim, dtype) -> pso.PSOState:
+    """Host-built placeholder (step 0): the program initialises it on its first chunk."""
+    z = lambda *shape: np.zeros((num_swarms, *shape), dtype)  # noqa: E731
+    return pso.PSOState(
+        position=z(num_particles, dim),
+        velocity=z(num_particles, dim),
+        pbest_position=z(num_particles, dim),
+        pbest_fitness=np.full((num_swarms, num_particles), np.inf, dtype),
+        gbest_position=z(dim),
+        gbest_fitness=np.full((num_swarms,), np.inf, dtype),
+        step=np.zeros((num_swarms,), np.int32),
+    )
+
+
+def _boxes(pairs, space: _Space, weight_bounds, dtype) -> pso.Box:
+    """Per-swarm search boxes: control points start in U[-1, 1] and are unbounded after;
+    log-weights start in U[-1, 1] and stay inside log(weight_bounds)."""
+    num_ctrl = space.n_pad * space.dim
+    size = num_ctrl + (space.n_pad if space.rational else 0)
+    init_lo, init_hi = -np.ones(size), np.ones(size)
+    lower, upper = np.full(size, -np.inf), np.full(size, np.inf)
+    if space.rational:
+        wlo, whi = np.log(weight_bounds[0]), np.log(weight_bounds[1])
+        lower[num_ctrl:], upper[num_ctrl:] = wlo, whi
+        init_lo[num_ctrl:] = np.maximum(-1.0, wlo)
+        init_hi[num_ctrl:] = np.minimum(1.0, whi)
+    masks = []
+    for _, n in pairs:
+        m = np.zeros(size)
+        m[: n * space.dim] = 1
+        if space.rational:
+            m[num_ctrl : num_ctrl + n] = 1
+        masks.append(m)
+    tile = lambda a: np.tile(a, (len(pairs), 1)).astype(dtype)  # noqa: E731
+    return pso.Box(tile(init_lo), tile(init_hi), tile(lower), tile(upper), np.array(masks, dtype))
+
+
+def _stack_bases(pairs, closed, rational, num_samples, n_pad, dtype) -> SampleBasis:
+    """Newton may roam a whole knot span where the Taylor model is exact (non-rational,
+    degree <= 3), and 1.5 sample spacings otherwise."""
+    per = [
+        make_sample_basis(
+            n, k, closed, num_samples, n_pad, reach=None if (k <= 3 and not rational) else 1.5
+        )
+        for k, n in pairs
+    ]
+    return SampleBasis(*(np.stack(parts).astype(dtype) for parts in zip(*per)))
+
+
+def _swarm_keys(seed, pairs) -> jax.Array:
+    root = seed if isinstance(seed, jax.Array) else jax.random.key(seed)
+    if not jnp.issubdtype(root.dtype, jax.dtypes.prng_key):
+        root = jax.random.wrap_key_data(root)
+    return jnp.stack([jax.random.fold_in(jax.random.fold_in(root, k), n) for k, n in pairs])
+
+
+def _drop_closing_duplicate(points: np.ndarray) -> np.ndarray:
+    """A closed outline may repeat its first point at the end; that copy is not data."""
+    span = np.ptp(points, axis=0).max()
+    if len(points) > 2 and np.linalg.norm(points[-1] - points[0]) <= 1e-12 * max(span, 1.0):
+        return points[:-1]
+    return points
+
+
+def fit(
+    points,
+    cps=range(4, 11),
+    degrees=3,
+    *,
+    closed: bool = False,
+    rational: bool = False,
+    particles: int = 64,
+    iterations: int = 2000,
+    tol: float | None = None,
+    seed: int | jax.Array = 0,
+    params: pso.PSOParams | None = None,
+    weight_bounds: tuple[float, float] = (1e-2, 1e2),
+    num_samples: int | None = None,
+    chunk_size: int = 200,
+    callback: Callable[[int, np.ndarray], object] | None = None,
+    dtype=jnp.float32,
+) -> FitResult:
+    """Fit B-spline (or NURBS) curves with every requested degree and control-point count.
+
+    Each (degree, n) pair is an independent particle swarm (SPEC §1); all swarms of the
+    call run in one jit-compiled program, on the default JAX device (a GPU if JAX sees
+    one).  Reported errors are true point-to-curve distances in the normalised frame.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 2) or (N, 3)
+        Points ordered along the curve.  For ``closed=True`` a last point that repeats
+        the first is dropped (it carries no information).
+    cps : int or iterable of int
+        Control-point counts.
+    degrees : int or iterable of int
+        Degrees (1 is a polygon).  Every count must be ``>= degree + 1``.
+    closed : bool
+        Closed curve on uniform periodic knots (``C^(degree-1)`` at the seam) instead of
+        an open curve on clamped uniform knots (end points interpolated).
+    rational : bool
+        Optimise NURBS weights too, inside ``weight_bounds``; reported scaled to max 1.
+    particles : int
+        Particles per swarm.
+    iterations : int
+        Iteration limit (the paper: 2000).  Each iteration evaluates every particle once.
+    tol : float, optional
+        Stop a swarm once its best fitness (mean distance, normalised frame) is ``<= tol``;
+        the call returns as soon as every swarm has.
+    seed : int or jax PRNG key
+        Same inputs and seed give the same curves (on the same device).
+    params : PSOParams, optional
+        Inertia, cognitive and social coefficients and the velocity clamp
+        (default :func:`swarmcurves_jax.pso.default_params`).
+    weight_bounds : (float, float)
+        Bounds of the rational weights during the search.
+    num_samples : int, optional
+        Curve samples used by the fitness (default :func:`default_num_samples`).
+    chunk_size : int
+        Iterations per compiled chunk; between chunks the host checks ``tol`` and calls
+        ``callback``.  Results do not depend on it.
+    callback : callable, optional
+        ``callback(iteration, best_fitness)`` after every chunk, ``best_fitness`` of shape
+        (num_solutions,).
+    dtype : jnp.float32 or jnp.float64
+        Precision of the swarm (float64 needs ``jax_enable_x64``).
+
+    Returns
+    -------
+    FitResult
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from swarmcurves_jax import fit
+    >>> x = np.linspace(-1, 1, 50)
+    >>> result = fit(np.c_[x, x**2], cps=[3, 4], degrees=2, iterations=300)
+    >>> result[2, 3].error < 1e-2
+    True
+    """
+    start = time.perf_counter()
+    pts = check_points(points)
+    closed, rational = bool(closed), bool(rational)
+    pairs = check_pairs(cps, degrees, closed)
+    num_particles = check_positive_int(particles, "particles")
+    iterations = check_positive_int(iterations, "iterations")
+    chunk_size = check_positive_int(chunk_size, "chunk_size")
+    tol = check_tol(tol)
+    weight_bounds = check_weight_bounds(weight_bounds)
+    if closed:
+        pts = _drop_closing_duplicate(pts)
+    n_max = max(n for _, n in pairs)
+    if len(pts) < n_max:
+        raise ValueError(
+            f"points: {len(pts)} points are too few for {n_max} control points; "
+            f"give at least as many points as the largest count in cps"
+        )
+    if num_samples is None:
+        num_samples = default_num_samples(pairs, closed)
+    num_samples = check_positive_int(num_samples, "num_samples")
+    dtype = jnp.dtype(dtype)
+    if dtype not in (jnp.float32, jnp.float64):
+        raise ValueError(f"dtype must be float32 or float64, got {dtype}")
+    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
+        raise ValueError("dtype float64 needs jax.config.update('jax_enable_x64', True)")
+    params = pso.default_params() if params is None else params
+
+    norm_pts, center, scale = normalise(pts)
+    dim = pts.shape[1]
+    space = _Space(n_pad=n_max, dim=dim, rational=rational)
+    boxes = _boxes(pairs, space, weight_bounds, dtype)
+    bases = _stack_bases(pairs, closed, rational, num_samples, n_max, dtype)
+    state = _empty_state(len(pairs), num_particles, boxes.mask.shape[1], dtype)
+    keys = _swarm_keys(seed, pairs)
+    params = pso.PSOParams(*(np.asarray(p, dtype) for p in params))
+    tol_arr = np.asarray(-1.0 if tol is None else tol, dtype)
+    max_steps = np.asarray(iterations, np.int32)
+    steps = min(chunk_size, iterations)
+    data = norm_pts.astype(dtype)
+
+    history, done, stop_reason = [], 0, "iterations"
+    while done < iterations:
+        state, info = _swarm_program(
+            keys, state, params, boxes, bases, data, tol_arr, max_steps,
+            space=space, num_particles=num_particles, num_steps=steps,
+        )
+        history.append(info.gbest_fitness)
+        done += steps
+        if callback is not None or tol is not None:
+            best = np.asarray(state.gbest_fitness)
+            if callback is not None:
+                callback(min(done, iterations), best)
+            if tol is not None and np.all(best <= tol):
+                stop_reason = "tol"
+                break
+
+    final = jax.device_get((state.gbest_position, state.gbest_fitness, state.step))
+    history = np.concatenate(jax.device_get(history), axis=1)[:, :iterations]
+    solutions = [
+        _make_curve(k, n, final[0][i], float(final[1][i]), int(final[2][i]), space,
+                    closed, norm_pts, center, scale, seed)
+        for i, (k, n) in enumerate(pairs)
+    ]
+    return FitResult(
+        solutions=solutions,
+        points=pts,
+        center=center,
+        scale=scale,
+        history=history.astype(np.float64),
+        stop_reason=stop_reason,
+        seed=seed if isinstance(seed, int) else None,
+        wall_time=time.perf_counter() - start,
+    )
+
+
+def _make_curve(k, n, q, fitness, steps, space, closed, norm_pts, center, scale, seed):
+    """Host side: un-pad, measure by true projection, map back to the caller's frame."""
+    q = np.asarray(q, dtype=np.float64)
+    ctrl = q[: space.n_pad * space.dim].reshape(space.n_pad, space.dim)[:n]
+    if space.rational:
+        logw = q[space.n_pad * space.dim :][:n]
+        weights = np.exp(logw - logw.max())
+    else:
+        weights = np.ones(n)
+    t = make_knots(n, k, closed)
+    dist, _ = project_points(norm_pts, ctrl, weights, t, k, closed)
+    diag = float(np.linalg.norm(np.ptp(norm_pts, axis=0)))
+    error = float(np.mean(dist))
+    return Curve(
+        degree=k,
+        control_points=center + scale * ctrl,
+        weights=weights,
+        knots=t,
+        closed=closed,
+        rational=space.rational,
+        error=error,
+        max_error=float(np.max(dist)),
+        rms_error=float(np.sqrt(np.mean(dist**2))),
+        error_pct_diag=100.0 * error / diag,
+        residuals=dist,
+        info={
+            "iterations": steps,
+            "fitness": fitness,
+            "seed": seed if isinstance(seed, int) else None,
+        },
+    )

@@ -1,0 +1,158 @@
+"""Particle swarm optimisation as pure functions over a state pytree (SPEC §1).
+
+One swarm minimises ``fitness_fn(positions) -> (P,)`` over flat positions of shape
+``(P, dim)``.  Everything here is traceable: ``run`` is a ``lax.scan`` over ``step``, and a
+caller vmaps it over independent swarms.  Each step evaluates the particles, updates the
+personal (``pbest``) and global (``gbest``) bests, then moves them with the paper's update
+
+    v <- inertia * v + cognitive * r_l * (pbest - q) + social * r_g * (gbest - q)
+    q <- q + v
+
+with ``r_l, r_g ~ U[0, 1]`` per coordinate and step, ``|v| <= v_max`` per coordinate, and
+positions kept inside ``[lower, upper]``.  NaN or inf fitness counts as ``+inf``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+__all__ = [
+    "PSOParams",
+    "PSOState",
+    "PSOInfo",
+    "Box",
+    "default_params",
+    "init",
+    "step",
+    "run",
+]
+
+FitnessFn = Callable[[jax.Array], jax.Array]
+
+
+class PSOParams(NamedTuple):
+    """Traced swarm coefficients (change them without recompiling)."""
+
+    inertia: jax.Array | float
+    cognitive: jax.Array | float
+    social: jax.Array | float
+    v_max: jax.Array | float
+
+
+def default_params() -> PSOParams:
+    """Defaults chosen by measurement (``benchmarks/tune_pso.py``): see README."""
+    return PSOParams(inertia=0.7298, cognitive=1.49618, social=1.49618, v_max=0.25)
+
+
+class Box(NamedTuple):
+    """Per-coordinate search box of one swarm, shape (dim,) each.
+
+    ``init_lower/init_upper`` bound the uniform initial positions, ``lower/upper`` every
+    later position; ``mask`` is 1 for live coordinates and 0 for padding, which never moves.
+    """
+
+    init_lower: jax.Array
+    init_upper: jax.Array
+    lower: jax.Array
+    upper: jax.Array
+    mask: jax.Array
+
+
+class PSOState(NamedTuple):
+    position: jax.Array  # (P, dim)
+    velocity: jax.Array  # (P, dim)
+    pbest_position: jax.Array  # (P, dim)
+    pbest_fitness: jax.Array  # (P,)
+    gbest_position: jax.Array  # (dim,)
+    gbest_fitness: jax.Array  # ()
+    step: jax.Array  # () int32: evaluations done
+
+
+class PSOInfo(NamedTuple):
+    """Per-step diagnostics (kept out of the carried state)."""
+
+    gbest_fitness: jax.Array  # ()
+    mean_fitness: jax.Array  # () mean finite fitness of the evaluated particles
+
+
+def init(key: jax.Array, box: Box, num_particles: int) -> PSOState:
+    """Uniform positions in the initial box, zero velocity, nothing evaluated yet."""
+    dim = box.mask.shape[0]
+    u = jax.random.uniform(key, (num_particles, dim), dtype=box.lower.dtype)
+    pos = (box.init_lower + u * (box.init_upper - box.init_lower)) * box.mask
+    inf = jnp.full((num_particles,), jnp.inf, dtype=pos.dtype)
+    return PSOState(
+        position=pos,
+        velocity=jnp.zeros_like(pos),
+        pbest_position=pos,
+        pbest_fitness=inf,
+        gbest_position=pos[0],
+        gbest_fitness=inf[0],
+        step=jnp.zeros((), jnp.int32),
+    )
+
+
+def step(
+    key: jax.Array,
+    state: PSOState,
+    params: PSOParams,
+    box: Box,
+    fitness_fn: FitnessFn,
+    tol: jax.Array | float,
+    max_steps: jax.Array | int,
+) -> tuple[PSOState, PSOInfo]:
+    """One evaluate-update-move step.
+
+    A swarm whose best fitness is already ``<= tol``, or which has done ``max_steps``
+    evaluations, is left unchanged (frozen), so a swarm's result never depends on how long
+    the other swarms of the same program run.
+    """
+    fit = fitness_fn(state.position)
+    fit = jnp.where(jnp.isfinite(fit), fit, jnp.inf)
+    better = fit < state.pbest_fitness
+    pbest_pos = jnp.where(better[:, None], state.position, state.pbest_position)
+    pbest_fit = jnp.where(better, fit, state.pbest_fitness)
+    best = jnp.argmin(pbest_fit)
+    gbest_pos, gbest_fit = pbest_pos[best], pbest_fit[best]
+
+    r_l, r_g = jax.random.uniform(key, (2, *state.position.shape), dtype=fit.dtype)
+    q = state.position
+    v = (
+        params.inertia * state.velocity
+        + params.cognitive * r_l * (pbest_pos - q)
+        + params.social * r_g * (gbest_pos[None, :] - q)
+    )
+    v = jnp.clip(v, -params.v_max, params.v_max) * box.mask
+    q = jnp.clip(q + v, box.lower, box.upper)
+
+    new = PSOState(q, v, pbest_pos, pbest_fit, gbest_pos, gbest_fit, state.step + 1)
+    active = (state.gbest_fitness > tol) & (state.step < max_steps)
+    state = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, state)
+    finite = jnp.isfinite(fit)
+    mean_fit = jnp.sum(jnp.where(finite, fit, 0.0)) / jnp.maximum(jnp.sum(finite), 1)
+    return state, PSOInfo(state.gbest_fitness, mean_fit)
+
+
+def run(
+    key: jax.Array,
+    state: PSOState,
+    params: PSOParams,
+    box: Box,
+    fitness_fn: FitnessFn,
+    num_steps: int,
+    tol: jax.Array | float = -1.0,
+    max_steps: jax.Array | int = jnp.iinfo(jnp.int32).max,
+) -> tuple[PSOState, PSOInfo]:
+    """``num_steps`` steps in one ``lax.scan``; info is stacked along the first axis.
+
+    The key of a step is ``fold_in(key, state.step)``, so splitting a run into chunks gives
+    exactly the same swarm as one long run.
+    """
+
+    def body(s, _):
+        return step(jax.random.fold_in(key, s.step), s, params, box, fitness_fn, tol, max_steps)
+
+    return jax.lax.scan(body, state, None, length=num_steps)
