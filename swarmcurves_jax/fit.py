@@ -21,6 +21,7 @@ from ._validation import (
 )
 from .curves import Curve
 from .fitness import SampleBasis, make_sample_basis, mean_distance
+from .basis import design_matrix
 from .knots import make_knots
 from .projection import project_points
 from .results import FitResult
@@ -69,21 +70,28 @@ def _particle_fitness(q, basis, points, space):
     return mean_distance(ctrl, weights, basis, points)
 
 
-@functools.partial(jax.jit, static_argnames=("space", "num_particles", "num_steps"))
-def _swarm_program(keys, state, params, boxes, bases, points, tol, max_steps, *, space,
-                   num_particles, num_steps):
-    """Run ``num_steps`` PSO steps of every swarm; swarms whose ``step`` is 0 start fresh."""
+@functools.partial(
+    jax.jit, static_argnames=("space", "num_particles", "num_steps", "seeded")
+)
+def _swarm_program(root_key, pairs, state, params, boxes, bases, seeds, points, tol, max_steps,
+                   *, space, num_particles, num_steps, seeded):
+    """Run ``num_steps`` PSO steps of every swarm; swarms whose ``step`` is 0 start fresh.
 
-    def one_swarm(key, state, box, basis):
+    A swarm's key is ``root_key`` folded with its degree and count, so its random stream
+    does not depend on which other swarms share the call.
+    """
+
+    def one_swarm(pair, state, box, basis, seed):
+        key = jax.random.fold_in(jax.random.fold_in(root_key, pair[0]), pair[1])
         init_key, run_key = jax.random.split(key)
-        fresh = pso.init(init_key, box, num_particles)
+        fresh = pso.init(init_key, box, num_particles, seed if seeded else None)
         state = jax.tree_util.tree_map(
             lambda a, b: jnp.where(state.step == 0, a, b), fresh, state
         )
         fitness_fn = jax.vmap(lambda q: _particle_fitness(q, basis, points, space))
         return pso.run(run_key, state, params, box, fitness_fn, num_steps, tol, max_steps)
 
-    return jax.vmap(one_swarm)(keys, state, boxes, bases)
+    return jax.vmap(one_swarm)(pairs, state, boxes, bases, seeds)
 
 
 def _empty_state(num_swarms, num_particles, dim, dtype) -> pso.PSOState:
@@ -96,13 +104,20 @@ def _empty_state(num_swarms, num_particles, dim, dtype) -> pso.PSOState:
         pbest_fitness=np.full((num_swarms, num_particles), np.inf, dtype),
         gbest_position=z(dim),
         gbest_fitness=np.full((num_swarms,), np.inf, dtype),
+        best_position=z(dim),
+        best_fitness=np.full((num_swarms,), np.inf, dtype),
+        stall=np.zeros((num_swarms,), np.int32),
         step=np.zeros((num_swarms,), np.int32),
     )
 
 
-def _boxes(pairs, space: _Space, weight_bounds, dtype) -> pso.Box:
-    """Per-swarm search boxes: control points start in U[-1, 1] and are unbounded after;
-    log-weights start in U[-1, 1] and stay inside log(weight_bounds)."""
+def _boxes(pairs, space: _Space, weight_bounds, ends, dtype) -> pso.Box:
+    """Per-swarm search boxes.
+
+    Control points start in U[-1, 1] and are unbounded after; log-weights start in
+    U[-1, 1] and stay inside log(weight_bounds).  ``ends`` ((2, D) or None) pins the first
+    and last control points of open curves to the data's end points (lower = upper).
+    """
     num_ctrl = space.n_pad * space.dim
     size = num_ctrl + (space.n_pad if space.rational else 0)
     init_lo, init_hi = -np.ones(size), np.ones(size)
@@ -112,15 +127,52 @@ def _boxes(pairs, space: _Space, weight_bounds, dtype) -> pso.Box:
         lower[num_ctrl:], upper[num_ctrl:] = wlo, whi
         init_lo[num_ctrl:] = np.maximum(-1.0, wlo)
         init_hi[num_ctrl:] = np.minimum(1.0, whi)
-    masks = []
+    boxes = []
     for _, n in pairs:
-        m = np.zeros(size)
-        m[: n * space.dim] = 1
+        b = [init_lo.copy(), init_hi.copy(), lower.copy(), upper.copy(), np.zeros(size)]
+        b[4][: n * space.dim] = 1
         if space.rational:
-            m[num_ctrl : num_ctrl + n] = 1
-        masks.append(m)
-    tile = lambda a: np.tile(a, (len(pairs), 1)).astype(dtype)  # noqa: E731
-    return pso.Box(tile(init_lo), tile(init_hi), tile(lower), tile(upper), np.array(masks, dtype))
+            b[4][num_ctrl : num_ctrl + n] = 1
+        if ends is not None:
+            for row, point in ((0, ends[0]), (n - 1, ends[1])):
+                sl = slice(row * space.dim, (row + 1) * space.dim)
+                for arr in b[:4]:
+                    arr[sl] = point
+        boxes.append(b)
+    return pso.Box(*(np.array(parts, dtype) for parts in zip(*boxes)))
+
+
+def chord_parameters(points: np.ndarray, closed: bool) -> np.ndarray:
+    """Cumulative chord-length parameters in [0, 1] (closed: [0, 1), the seam at 0)."""
+    pts = np.vstack([points, points[:1]]) if closed else points
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    u = np.concatenate([[0.0], np.cumsum(seg)])
+    u = u / u[-1] if u[-1] > 0 else np.linspace(0, 1, len(pts))
+    return u[:-1] if closed else u
+
+
+def least_squares_ctrl(points, n, k, closed, ends=None) -> np.ndarray:
+    """Linear least-squares control points on chord-length parameters (the swarm's seed).
+
+    With ``ends`` the first and last control points are fixed and the rest solved for.
+    """
+    u = chord_parameters(points, closed)
+    b = design_matrix(u, make_knots(n, k, closed), k, closed=closed)
+    if ends is None:
+        return np.linalg.lstsq(b, points, rcond=None)[0]
+    rhs = points - np.outer(b[:, 0], ends[0]) - np.outer(b[:, -1], ends[1])
+    inner = np.linalg.lstsq(b[:, 1:-1], rhs, rcond=None)[0]
+    return np.vstack([ends[0], inner, ends[1]])
+
+
+def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
+    """One least-squares position per swarm, laid out like a particle."""
+    size = space.n_pad * space.dim + (space.n_pad if space.rational else 0)
+    out = np.zeros((len(pairs), size))
+    for i, (k, n) in enumerate(pairs):
+        ctrl = least_squares_ctrl(norm_pts, n, k, closed, ends)
+        out[i, : n * space.dim] = ctrl.ravel()
+    return out.astype(dtype)
 
 
 def _stack_bases(pairs, closed, rational, num_samples, n_pad, dtype) -> SampleBasis:
@@ -135,11 +187,14 @@ def _stack_bases(pairs, closed, rational, num_samples, n_pad, dtype) -> SampleBa
     return SampleBasis(*(np.stack(parts).astype(dtype) for parts in zip(*per)))
 
 
-def _swarm_keys(seed, pairs) -> jax.Array:
-    root = seed if isinstance(seed, jax.Array) else jax.random.key(seed)
-    if not jnp.issubdtype(root.dtype, jax.dtypes.prng_key):
-        root = jax.random.wrap_key_data(root)
-    return jnp.stack([jax.random.fold_in(jax.random.fold_in(root, k), n) for k, n in pairs])
+def _root_key(seed) -> jax.Array:
+    if isinstance(seed, jax.Array):
+        if jnp.issubdtype(seed.dtype, jax.dtypes.prng_key):
+            return seed
+        return jax.random.wrap_key_data(seed)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"seed must be an int or a JAX PRNG key, got {seed!r}")
+    return jax.random.key(int(seed))
 
 
 def _drop_closing_duplicate(points: np.ndarray) -> np.ndarray:
@@ -157,6 +212,8 @@ def fit(
     *,
     closed: bool = False,
     rational: bool = False,
+    fix_ends: bool = True,
+    init: str = "lsq",
     particles: int = 64,
     iterations: int = 2000,
     tol: float | None = None,
@@ -235,6 +292,8 @@ def fit(
     chunk_size = check_positive_int(chunk_size, "chunk_size")
     tol = check_tol(tol)
     weight_bounds = check_weight_bounds(weight_bounds)
+    if init not in ("lsq", "uniform"):
+        raise ValueError(f"init must be 'lsq' or 'uniform', got {init!r}")
     if closed:
         pts = _drop_closing_duplicate(pts)
     n_max = max(n for _, n in pairs)
@@ -256,33 +315,40 @@ def fit(
     norm_pts, center, scale = normalise(pts)
     dim = pts.shape[1]
     space = _Space(n_pad=n_max, dim=dim, rational=rational)
-    boxes = _boxes(pairs, space, weight_bounds, dtype)
+    ends = norm_pts[[0, -1]] if (fix_ends and not closed) else None
+    boxes = _boxes(pairs, space, weight_bounds, ends, dtype)
+    seeds = _seeds(pairs, space, norm_pts, closed, ends, dtype)
     bases = _stack_bases(pairs, closed, rational, num_samples, n_max, dtype)
     state = _empty_state(len(pairs), num_particles, boxes.mask.shape[1], dtype)
-    keys = _swarm_keys(seed, pairs)
+    root_key = _root_key(seed)
+    pair_ids = np.array(pairs, np.int32)
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in params))
     tol_arr = np.asarray(-1.0 if tol is None else tol, dtype)
     max_steps = np.asarray(iterations, np.int32)
     steps = min(chunk_size, iterations)
     data = norm_pts.astype(dtype)
 
+    # Device arrays from the start: host arrays would key a second cache entry.
+    state, params, boxes, bases, seeds, pair_ids, data, tol_arr, max_steps = jax.device_put(
+        (state, params, boxes, bases, seeds, pair_ids, data, tol_arr, max_steps)
+    )
     history, done, stop_reason = [], 0, "iterations"
     while done < iterations:
         state, info = _swarm_program(
-            keys, state, params, boxes, bases, data, tol_arr, max_steps,
-            space=space, num_particles=num_particles, num_steps=steps,
+            root_key, pair_ids, state, params, boxes, bases, seeds, data, tol_arr, max_steps,
+            space=space, num_particles=num_particles, num_steps=steps, seeded=init == "lsq",
         )
-        history.append(info.gbest_fitness)
+        history.append(info.best_fitness)
         done += steps
         if callback is not None or tol is not None:
-            best = np.asarray(state.gbest_fitness)
+            best = np.asarray(state.best_fitness)
             if callback is not None:
                 callback(min(done, iterations), best)
             if tol is not None and np.all(best <= tol):
                 stop_reason = "tol"
                 break
 
-    final = jax.device_get((state.gbest_position, state.gbest_fitness, state.step))
+    final = jax.device_get((state.best_position, state.best_fitness, state.step))
     history = np.concatenate(jax.device_get(history), axis=1)[:, :iterations]
     solutions = [
         _make_curve(k, n, final[0][i], float(final[1][i]), int(final[2][i]), space,

@@ -10,6 +10,10 @@ personal (``pbest``) and global (``gbest``) bests, then moves them with the pape
 
 with ``r_l, r_g ~ U[0, 1]`` per coordinate and step, ``|v| <= v_max`` per coordinate, and
 positions kept inside ``[lower, upper]``.  NaN or inf fitness counts as ``+inf``.
+
+A converged swarm only polishes its basin, so after ``patience`` steps without a 0.1 %
+improvement of the run's best the swarm restarts from fresh uniform positions (a new,
+independent run); ``best_*`` keeps the best ever found, which is what a caller reports.
 """
 
 from __future__ import annotations
@@ -34,17 +38,23 @@ FitnessFn = Callable[[jax.Array], jax.Array]
 
 
 class PSOParams(NamedTuple):
-    """Traced swarm coefficients (change them without recompiling)."""
+    """Traced swarm coefficients (change them without recompiling).
+
+    ``inertia`` is the paper's psi, ``cognitive`` phi_l, ``social`` phi_g; ``v_max`` clamps
+    every velocity coordinate; ``patience`` is the number of steps without improvement
+    after which the swarm restarts (``inf``: never).
+    """
 
     inertia: jax.Array | float
     cognitive: jax.Array | float
     social: jax.Array | float
     v_max: jax.Array | float
+    patience: jax.Array | float = float("inf")
 
 
 def default_params() -> PSOParams:
     """Defaults chosen by measurement (``benchmarks/tune_pso.py``): see README."""
-    return PSOParams(inertia=0.7298, cognitive=1.49618, social=1.49618, v_max=0.25)
+    return PSOParams(inertia=0.7298, cognitive=1.49618, social=1.49618, v_max=0.1, patience=100.0)
 
 
 class Box(NamedTuple):
@@ -66,33 +76,41 @@ class PSOState(NamedTuple):
     velocity: jax.Array  # (P, dim)
     pbest_position: jax.Array  # (P, dim)
     pbest_fitness: jax.Array  # (P,)
-    gbest_position: jax.Array  # (dim,)
+    gbest_position: jax.Array  # (dim,) best of the current run (drives the update)
     gbest_fitness: jax.Array  # ()
+    best_position: jax.Array  # (dim,) best ever, across restarts (the result)
+    best_fitness: jax.Array  # ()
+    stall: jax.Array  # () int32: steps since the run's best last improved by 0.1 %
     step: jax.Array  # () int32: evaluations done
 
 
 class PSOInfo(NamedTuple):
     """Per-step diagnostics (kept out of the carried state)."""
 
-    gbest_fitness: jax.Array  # ()
+    best_fitness: jax.Array  # () best ever after this step
     mean_fitness: jax.Array  # () mean finite fitness of the evaluated particles
+    restarted: jax.Array  # () bool: the swarm restarted after this step
 
 
-def init(key: jax.Array, box: Box, num_particles: int) -> PSOState:
-    """Uniform positions in the initial box, zero velocity, nothing evaluated yet."""
-    dim = box.mask.shape[0]
-    u = jax.random.uniform(key, (num_particles, dim), dtype=box.lower.dtype)
-    pos = (box.init_lower + u * (box.init_upper - box.init_lower)) * box.mask
+def init(
+    key: jax.Array, box: Box, num_particles: int, seed_position: jax.Array | None = None
+) -> PSOState:
+    """Uniform positions in the initial box, zero velocity, nothing evaluated yet.
+
+    ``seed_position`` (dim,), if given, replaces particle 0 (e.g. a least-squares guess).
+    """
+    pos = _uniform_positions(key, box, num_particles)
+    if seed_position is not None:
+        pos = pos.at[0].set(jnp.clip(seed_position, box.lower, box.upper) * box.mask)
     inf = jnp.full((num_particles,), jnp.inf, dtype=pos.dtype)
-    return PSOState(
-        position=pos,
-        velocity=jnp.zeros_like(pos),
-        pbest_position=pos,
-        pbest_fitness=inf,
-        gbest_position=pos[0],
-        gbest_fitness=inf[0],
-        step=jnp.zeros((), jnp.int32),
-    )
+    zero = jnp.zeros((), jnp.int32)
+    return PSOState(pos, jnp.zeros_like(pos), pos, inf, pos[0], inf[0], pos[0], inf[0], zero, zero)
+
+
+def _uniform_positions(key, box: Box, num_particles: int) -> jax.Array:
+    u = jax.random.uniform(key, (num_particles, box.mask.shape[0]), dtype=box.lower.dtype)
+    span = (box.init_upper - box.init_lower)[None, :]
+    return (box.init_lower[None, :] + u * span) * box.mask[None, :]
 
 
 def step(
@@ -115,25 +133,40 @@ def step(
     better = fit < state.pbest_fitness
     pbest_pos = jnp.where(better[:, None], state.position, state.pbest_position)
     pbest_fit = jnp.where(better, fit, state.pbest_fitness)
-    best = jnp.argmin(pbest_fit)
-    gbest_pos, gbest_fit = pbest_pos[best], pbest_fit[best]
+    i = jnp.argmin(pbest_fit)
+    gbest_pos, gbest_fit = pbest_pos[i], pbest_fit[i]
+    improved = gbest_fit < state.best_fitness
+    best_pos = jnp.where(improved, gbest_pos, state.best_position)
+    best_fit = jnp.where(improved, gbest_fit, state.best_fitness)
+    progress = gbest_fit < state.gbest_fitness * (1.0 - 1e-3)
+    stall = jnp.where(progress, 0, state.stall + 1)
 
-    r_l, r_g = jax.random.uniform(key, (2, *state.position.shape), dtype=fit.dtype)
+    move_key, restart_key = jax.random.split(key)
+    r_l, r_g = jax.random.uniform(move_key, (2, *state.position.shape), dtype=fit.dtype)
     q = state.position
     v = (
         params.inertia * state.velocity
         + params.cognitive * r_l * (pbest_pos - q)
         + params.social * r_g * (gbest_pos[None, :] - q)
     )
-    v = jnp.clip(v, -params.v_max, params.v_max) * box.mask
-    q = jnp.clip(q + v, box.lower, box.upper)
+    v = jnp.clip(v, -params.v_max, params.v_max) * box.mask[None, :]
+    q = jnp.clip(q + v, box.lower[None, :], box.upper[None, :])
+    moved = PSOState(q, v, pbest_pos, pbest_fit, gbest_pos, gbest_fit, best_pos, best_fit, stall,
+                     state.step + 1)
 
-    new = PSOState(q, v, pbest_pos, pbest_fit, gbest_pos, gbest_fit, state.step + 1)
-    active = (state.gbest_fitness > tol) & (state.step < max_steps)
+    restart = stall >= params.patience
+    fresh = _uniform_positions(restart_key, box, q.shape[0])
+    inf = jnp.full_like(pbest_fit, jnp.inf)
+    restarted = moved._replace(
+        position=fresh, velocity=jnp.zeros_like(v), pbest_position=fresh, pbest_fitness=inf,
+        gbest_fitness=inf[0], stall=jnp.zeros_like(stall),
+    )
+    new = jax.tree_util.tree_map(lambda a, b: jnp.where(restart, a, b), restarted, moved)
+    active = (state.best_fitness > tol) & (state.step < max_steps)
     state = jax.tree_util.tree_map(lambda a, b: jnp.where(active, a, b), new, state)
     finite = jnp.isfinite(fit)
     mean_fit = jnp.sum(jnp.where(finite, fit, 0.0)) / jnp.maximum(jnp.sum(finite), 1)
-    return state, PSOInfo(state.gbest_fitness, mean_fit)
+    return state, PSOInfo(state.best_fitness, mean_fit, restart & active)
 
 
 def run(

@@ -1,0 +1,91 @@
+"""The swarm as pure functions: it optimises, it is deterministic, chunking changes nothing."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from swarmcurves_jax import pso
+
+
+def box(dim, lo=-5.0, hi=5.0):
+    return pso.Box(
+        jnp.full(dim, lo), jnp.full(dim, hi), jnp.full(dim, -jnp.inf), jnp.full(dim, jnp.inf),
+        jnp.ones(dim),
+    )
+
+
+def sphere(q):
+    return jnp.sum((q - 1.5) ** 2, axis=-1)
+
+
+def rosenbrock(q):
+    return jnp.sum(100 * (q[:, 1:] - q[:, :-1] ** 2) ** 2 + (1 - q[:, :-1]) ** 2, axis=-1)
+
+
+def solve(fn, dim, steps, key=0, params=None):
+    params = params or pso.default_params()
+    k = jax.random.key(key)
+    state = pso.init(k, box(dim), 32)
+    return pso.run(k, state, params, box(dim), fn, steps)
+
+
+def test_converges_on_sphere_and_rosenbrock():
+    state, info = solve(sphere, 4, 600)
+    np.testing.assert_allclose(state.best_position, 1.5, atol=1e-3)
+    state, _ = solve(rosenbrock, 2, 1500)
+    np.testing.assert_allclose(state.best_position, 1.0, atol=3e-2)
+    assert np.all(np.diff(np.asarray(info.best_fitness)) <= 0)  # best ever never worsens
+
+
+def test_nan_fitness_counts_as_inf():
+    def nan_left(q):
+        return jnp.where(q[:, 0] < 0, jnp.nan, sphere(q))
+
+    state, _ = solve(nan_left, 2, 300)
+    assert np.isfinite(state.best_fitness) and state.best_position[0] >= 0
+    assert not np.any(np.isnan(np.asarray(state.pbest_fitness)))
+
+
+def test_chunked_equals_one_run_and_same_key_same_result():
+    k = jax.random.key(3)
+    params = pso.default_params()
+    s0 = pso.init(k, box(3), 16)
+    whole, _ = pso.run(k, s0, params, box(3), rosenbrock, 300)
+    part, _ = pso.run(k, s0, params, box(3), rosenbrock, 120)
+    part, _ = pso.run(k, part, params, box(3), rosenbrock, 180)
+    for a, b in zip(whole, part):
+        np.testing.assert_array_equal(a, b)
+    again, _ = pso.run(k, s0, params, box(3), rosenbrock, 300)
+    np.testing.assert_array_equal(whole.best_position, again.best_position)
+
+
+def test_vmapped_swarms_equal_a_loop():
+    keys = jax.random.split(jax.random.key(0), 3)
+    params = pso.default_params()
+    b = box(2)
+
+    def one(key):
+        return pso.run(key, pso.init(key, b, 8), params, b, rosenbrock, 100)[0].best_position
+
+    batched = jax.vmap(one)(keys)
+    for i in range(3):
+        # equal up to float32 fusion order
+        np.testing.assert_allclose(batched[i], one(keys[i]), rtol=1e-4, atol=1e-6)
+
+
+def test_tol_and_max_steps_freeze_the_swarm():
+    k = jax.random.key(0)
+    b = box(2)
+    s0 = pso.init(k, b, 16)
+    frozen, _ = pso.run(k, s0, pso.default_params(), b, sphere, 400, tol=1e-2)
+    assert frozen.best_fitness <= 1e-2 and frozen.step < 400
+    capped, _ = pso.run(k, s0, pso.default_params(), b, sphere, 50, max_steps=20)
+    assert int(capped.step) == 20
+
+
+def test_restart_after_patience():
+    params = pso.default_params()._replace(patience=10.0)
+    k = jax.random.key(1)
+    b = box(2)
+    state, info = pso.run(k, pso.init(k, b, 8), params, b, lambda q: jnp.ones(q.shape[0]), 40)
+    assert np.asarray(info.restarted).sum() >= 3  # a flat fitness never progresses
