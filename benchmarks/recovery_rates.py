@@ -12,16 +12,11 @@ import argparse
 
 import numpy as np
 
-from swarmcurves_jax import design_matrix, fit, make_knots
+from swarmcurves_jax import fit
+from swarmcurves_jax.datasets import random_bspline_points
 
 CASES = [("open 2D, 6 cp", 6, False, 2, range(4, 9)), ("closed 2D, 8 cp", 8, True, 2, range(6, 11)),
          ("open 3D, 6 cp", 6, False, 3, range(4, 9))]
-
-
-def spline_points(seed, n, closed, dim=2, k=3, num=200):
-    ctrl = np.random.default_rng(seed).uniform(-1, 1, (n, dim))
-    u = np.linspace(0, 1, num, endpoint=not closed)
-    return design_matrix(u, make_knots(n, k, closed), k, closed=closed) @ ctrl
 
 
 def main(argv=None):
@@ -32,7 +27,8 @@ def main(argv=None):
     for name, n, closed, dim, cps in CASES:
         errs = []
         for seed in range(args.first, args.first + args.seeds):
-            r = fit(spline_points(seed, n, closed, dim), cps=cps, closed=closed)
+            pts = random_bspline_points(n, 3, closed, dim=dim, seed=seed)[0]
+            r = fit(pts, cps=cps, closed=closed)
             errs.append(r[3, n].error)
             print(f"  {name} seed {seed}: {errs[-1]:.2e}", flush=True)
         errs = np.array(errs)

@@ -6,13 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from swarmcurves_jax import Curve, FitResult, design_matrix, fit, make_knots
+from swarmcurves_jax import Curve, FitResult, fit
+from swarmcurves_jax.datasets import random_bspline_points
 
 
-def spline_points(seed, n, closed, dim=2, k=3, num=200):
-    ctrl = np.random.default_rng(seed).uniform(-1, 1, (n, dim))
-    u = np.linspace(0, 1, num, endpoint=not closed)
-    return design_matrix(u, make_knots(n, k, closed), k, closed=closed) @ ctrl
+def spline_points(seed, n, closed, dim=2, num=200):
+    return random_bspline_points(n, 3, closed, num_points=num, dim=dim, seed=seed)[0]
 
 
 # The swarm does not find the global basin on every random curve: the rates measured over 12
