@@ -102,9 +102,9 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
 
     Ranking by the tangent segment rather than the sample point keeps a point on its own
     branch where the curve moves fast and samples are sparse.  Written for XLA:CPU speed
-    (``benchmarks/bench_fitness.py``): ``argmin`` is a variadic reduction the CPU backend
-    does not vectorise, and a ``min`` over a broadcast (N, M) array goes to a library
-    kernel that materialises it.  So the index is packed into the low mantissa bits of the
+    (measured on W1, ``benchmarks/bench_w1.py``): ``argmin`` is a variadic reduction the CPU
+    backend does not vectorise (~40x slower), and a ``min`` over a broadcast (N, M) array
+    goes to a library kernel that materialises it.  So the index is packed into the low mantissa bits of the
     (non-negative) squared distance and the minimum is an unrolled running ``minimum`` over
     samples, which fuses into one loop (a ``lax.scan`` over blocks of 128 beyond that).
     Ties break at a relative precision of ``2**(bits - 24)``; the caller refines anyway.

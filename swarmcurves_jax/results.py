@@ -123,5 +123,6 @@ class FitResult:
             f"stopped on {self.stop_reason})"
         )
 
-    def _normalised(self, points: np.ndarray) -> np.ndarray:
+    def normalised(self, points) -> np.ndarray:
+        """``points`` (M, D) mapped into the normalised frame the errors are measured in."""
         return (np.asarray(points, dtype=np.float64) - self.center) / self.scale

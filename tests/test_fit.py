@@ -99,7 +99,7 @@ def test_result_objects_and_round_trip(tmp_path):
     assert curve.closed and curve.rational and curve.weights.max() == 1.0
     assert curve.error <= curve.rms_error <= curve.max_error
     np.testing.assert_allclose(curve.error_pct_diag,
-                               100 * curve.error / np.linalg.norm(np.ptp(result._normalised(pts), 0)))
+                               100 * curve.error / np.linalg.norm(np.ptp(result.normalised(pts), 0)))
     path = tmp_path / "c.json"
     path.write_text(json.dumps(curve.to_dict()))
     back = Curve.from_dict(json.loads(path.read_text()))
