@@ -112,10 +112,11 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
     num, dim = samples.shape
     bits = max(1, (num - 1).bit_length())
     low = jnp.int32((1 << bits) - 1)
-    inv_len2 = 1.0 / jnp.maximum(jnp.sum(tangents**2, axis=1), 1e-30)
+    len2 = jnp.sum(tangents**2, axis=1)
+    inv_len2 = 1.0 / jnp.maximum(len2, 1e-30)
 
     def block_min(acc, blk):
-        first, block, tang, inv = blk
+        first, block, tang, inv, sq = blk
         for m in range(block.shape[0]):
             diff = [points[:, i] - block[m, i] for i in range(dim)]
             d2 = sum(x * x for x in diff)
@@ -123,14 +124,14 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
             s = jnp.clip(along * inv[m], -1.0, 1.0)
             # Floor at a normal float: a tagged 0 would be a denormal, flushed to 0 by
             # XLA:CPU, and its index lost.
-            d2 = jnp.maximum(d2 - s * (2.0 * along - s / inv[m]), 1e-30).astype(jnp.float32)
+            d2 = jnp.maximum(d2 - s * (2.0 * along - s * sq[m]), 1e-30).astype(jnp.float32)
             tagged = (jax.lax.bitcast_convert_type(d2, jnp.int32) & ~low) | (first + m)
             tagged = jax.lax.bitcast_convert_type(tagged, jnp.float32)
             acc = tagged if acc is None else jnp.minimum(acc, tagged)
         return acc
 
     if num <= _BLOCK:
-        best = block_min(None, (jnp.int32(0), samples, tangents, inv_len2))
+        best = block_min(None, (jnp.int32(0), samples, tangents, inv_len2, len2))
     else:
         num_blocks = -(-num // _BLOCK)
         pad = num_blocks * _BLOCK - num
@@ -138,7 +139,7 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
             jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]).reshape(
                 num_blocks, _BLOCK, *a.shape[1:]
             )
-            for a in (samples, tangents, inv_len2)
+            for a in (samples, tangents, inv_len2, len2)
         ]
         firsts = jnp.arange(num_blocks, dtype=jnp.int32) * _BLOCK
         init = jnp.full(points.shape[:1], jnp.inf, jnp.float32)
