@@ -32,6 +32,8 @@ def main(argv=None):
     ap.add_argument("--iterations", type=int, default=2000)
     ap.add_argument("--particles", type=int, default=64)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--progress", action="store_true",
+                    help="also time warm runs with the progress bar on (its overhead)")
     args = ap.parse_args(argv)
     pts = f4_points()
     kwargs = dict(cps=range(4, 11), degrees=(1, 2, 3), particles=args.particles,
@@ -44,6 +46,16 @@ def main(argv=None):
         t0 = time.perf_counter()
         fit(pts, **kwargs)
         warm.append(time.perf_counter() - t0)
+    with_bar = []
+    if args.progress:
+        import io
+        from contextlib import redirect_stderr
+
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            with redirect_stderr(io.StringIO()):
+                fit(pts, progress=True, **kwargs)
+            with_bar.append(time.perf_counter() - t0)
     evals = len(result.solutions) * args.particles * args.iterations
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"device        : {jax.devices()[0].device_kind} ({jax.default_backend()}), "
@@ -53,6 +65,9 @@ def main(argv=None):
     print(f"cold (compile): {cold:.2f} s")
     print(f"warm          : {min(warm):.2f} s (min of {args.repeats}; all: "
           f"{', '.join(f'{w:.2f}' for w in warm)})")
+    if with_bar:
+        print(f"warm, progress: {min(with_bar):.2f} s (min of {args.repeats}): overhead "
+              f"{100 * (min(with_bar) / min(warm) - 1):+.1f} %")
     print(f"throughput    : {evals / min(warm):.3e} particle-evaluations/s")
     print(f"peak RSS      : {peak_mib:.0f} MiB (whole process)")
     print("best per degree:")

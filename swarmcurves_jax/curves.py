@@ -134,6 +134,41 @@ class Curve:
 
     __call__ = evaluate
 
+    def to_clamped(self) -> "Curve":
+        """The same curve on clamped knots: a closed curve becomes the open curve with
+        ``n + degree`` control points whose ends meet (the form CAD formats expect)."""
+        from .interop import clamped_form
+
+        if not self.closed:
+            return self
+        t, ctrl, w = clamped_form(self)
+        return dataclasses.replace(self, control_points=ctrl, weights=w, knots=t, closed=False)
+
+    def to_scipy(self):
+        """``scipy.interpolate.BSpline(t, c, k)``, ``c`` of shape (n, D).
+
+        A closed curve keeps its periodic knots, with ``c`` the ``n + degree`` unwrapped
+        control points (the first ``degree`` repeated) and ``extrapolate='periodic'``.
+        Rational curves raise ``ValueError`` (scipy has no NURBS): see :meth:`to_geomdl`.
+        """
+        from .interop import to_scipy
+
+        return to_scipy(self)
+
+    @classmethod
+    def from_scipy(cls, spline) -> "Curve":
+        """A curve from a ``BSpline`` on clamped uniform knots, or on uniform periodic knots
+        with the first ``k`` coefficients repeated at the end (what :meth:`to_scipy` makes)."""
+        from .interop import from_scipy
+
+        return from_scipy(spline, cls)
+
+    def to_geomdl(self):
+        """A geomdl ``NURBS.Curve`` / ``BSpline.Curve`` (clamped form; needs ``geomdl``)."""
+        from .interop import to_geomdl
+
+        return to_geomdl(self)
+
     def to_dict(self) -> dict[str, Any]:
         """A JSON-safe dictionary; :meth:`from_dict` restores the curve exactly."""
         out = {

@@ -224,6 +224,7 @@ def fit(
     num_samples: int | None = None,
     chunk_size: int = 200,
     callback: Callable[[int, np.ndarray], object] | None = None,
+    progress: bool = False,
     dtype=jnp.float32,
 ) -> FitResult:
     """Fit B-spline (or NURBS) curves with every requested degree and control-point count.
@@ -268,6 +269,10 @@ def fit(
     callback : callable, optional
         ``callback(iteration, best_fitness)`` after every chunk, ``best_fitness`` of shape
         (num_solutions,).
+    progress : bool
+        Show a progress bar (tqdm) with the best error per degree.  Quiet by default.
+        Ctrl-C stops the run cleanly: the result holds the best solutions found so far
+        and ``stop_reason == "interrupted"``.
     dtype : jnp.float32 or jnp.float64
         Precision of the swarm (float64 needs ``jax_enable_x64``).
 
@@ -334,20 +339,33 @@ def fit(
         (state, params, boxes, bases, seeds, pair_ids, data, tol_arr, max_steps)
     )
     history, done, stop_reason = [], 0, "iterations"
-    while done < iterations:
-        state, info = _swarm_program(
-            root_key, pair_ids, state, params, boxes, bases, seeds, data, tol_arr, max_steps,
-            space=space, num_particles=num_particles, num_steps=steps, seeded=init == "lsq",
-        )
-        history.append(info.best_fitness)
-        done += steps
-        if callback is not None or tol is not None:
+    bar = _progress_bar(iterations, pairs) if progress else None
+    try:
+        while done < iterations:
+            state, info = _swarm_program(
+                root_key, pair_ids, state, params, boxes, bases, seeds, data, tol_arr, max_steps,
+                space=space, num_particles=num_particles, num_steps=steps, seeded=init == "lsq",
+            )
+            history.append(info.best_fitness)
+            done += steps
+            if callback is None and tol is None and bar is None:
+                continue
             best = np.asarray(state.best_fitness)
+            if bar is not None:
+                bar.update(min(done, iterations) - bar.n)
+                bar.set_postfix_str(_best_per_degree(pairs, best))
             if callback is not None:
                 callback(min(done, iterations), best)
             if tol is not None and np.all(best <= tol):
                 stop_reason = "tol"
                 break
+    except KeyboardInterrupt:
+        stop_reason = "interrupted"
+    finally:
+        if bar is not None:
+            bar.close()
+    if not history:
+        raise KeyboardInterrupt
 
     final = jax.device_get((state.best_position, state.best_fitness, state.step))
     history = np.concatenate(jax.device_get(history), axis=1)[:, :iterations]
@@ -366,6 +384,19 @@ def fit(
         seed=seed if isinstance(seed, int) else None,
         wall_time=time.perf_counter() - start,
     )
+
+
+def _progress_bar(iterations, pairs):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=iterations, desc=f"{len(pairs)} swarms", unit="it", leave=False)
+
+
+def _best_per_degree(pairs, best) -> str:
+    out = {}
+    for (k, _), f in zip(pairs, best):
+        out[k] = min(out.get(k, np.inf), float(f))
+    return " ".join(f"d{k}={v:.2e}" for k, v in out.items())
 
 
 def _make_curve(k, n, q, fitness, steps, space, closed, norm_pts, center, scale, seed):

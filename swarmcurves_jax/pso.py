@@ -109,6 +109,11 @@ def init(
 
 def _uniform_positions(key, box: Box, num_particles: int) -> jax.Array:
     u = jax.random.uniform(key, (num_particles, box.mask.shape[0]), dtype=box.lower.dtype)
+    return _scale_to_init_box(u, box)
+
+
+def _scale_to_init_box(u: jax.Array, box: Box) -> jax.Array:
+    """Map U[0, 1] draws (P, dim) into the initial box; padding stays at 0."""
     span = (box.init_upper - box.init_lower)[None, :]
     return (box.init_lower[None, :] + u * span) * box.mask[None, :]
 
@@ -141,8 +146,7 @@ def step(
     progress = gbest_fit < state.gbest_fitness * (1.0 - 1e-3)
     stall = jnp.where(progress, 0, state.stall + 1)
 
-    move_key, restart_key = jax.random.split(key)
-    r_l, r_g = jax.random.uniform(move_key, (2, *state.position.shape), dtype=fit.dtype)
+    r_l, r_g = jax.random.uniform(key, (2, *state.position.shape), dtype=fit.dtype)
     q = state.position
     v = (
         params.inertia * state.velocity
@@ -155,7 +159,8 @@ def step(
                      state.step + 1)
 
     restart = stall >= params.patience
-    fresh = _uniform_positions(restart_key, box, q.shape[0])
+    # A restart discards this step's move, so its r_l draw is free to place the new swarm.
+    fresh = _scale_to_init_box(r_l, box)
     inf = jnp.full_like(pbest_fit, jnp.inf)
     restarted = moved._replace(
         position=fresh, velocity=jnp.zeros_like(v), pbest_position=fresh, pbest_fitness=inf,

@@ -58,7 +58,8 @@ class FitResult:
     history : ndarray, shape (num_solutions, iterations_run)
         Best swarm fitness (normalised frame) after every iteration, per solution.
     stop_reason : str
-        ``"iterations"`` (the limit was reached) or ``"tol"`` (every swarm reached ``tol``).
+        ``"iterations"`` (the limit was reached), ``"tol"`` (every swarm reached ``tol``)
+        or ``"interrupted"`` (Ctrl-C; the best solutions found so far).
     seed : int or None
     wall_time : float
         Seconds spent in ``fit`` (compilation included).
@@ -77,6 +78,13 @@ class FitResult:
     def best(self) -> Curve:
         """The solution with the lowest ``error``."""
         return min(self.solutions, key=lambda c: math.inf if math.isnan(c.error) else c.error)
+
+    def sparsest(self, max_error_pct_diag: float = 0.35) -> Curve | None:
+        """The solution with the fewest control points whose ``error_pct_diag`` is within
+        ``max_error_pct_diag`` (ties: the lower error); ``None`` if none is.  The default
+        0.35 % is the paper's typical error."""
+        ok = [c for c in self.solutions if c.error_pct_diag <= max_error_pct_diag]
+        return min(ok, key=lambda c: (c.n_ctrl, c.error)) if ok else None
 
     def __getitem__(self, key: tuple[int, int]) -> Curve:
         """``result[degree, n]``: the solution of that degree and control-point count."""

@@ -1,176 +1,238 @@
 """Command line: ``python -m swarmcurves_jax.run [CONFIG.yaml] [overrides]``.
 
-Runs one fitting job and prints its table of solutions.  With no config it fits the
-built-in example (the paper's f4 curve, cubic, 4-10 control points).  With an output
-folder (``out:`` or ``--out``) it writes ``solutions.json`` there, refusing to write over
-an earlier run unless ``--force``.  Bad configs stop with exit code 2 and one line that
-names the key.  This is the only module that reads or writes files.
+Runs one fitting job: reads points (a file or a built-in dataset), fits every requested
+(degree, control-point count), prints the table of solutions with the best and the
+sparsest-within-tolerance marked, and writes solutions, figures and CAD exports into the
+output folder.  With no config it fits the built-in example (the paper's f4 curve) and
+only prints.  Bad configs and bad files stop the run before any work with exit code 2 and
+one line that names the key.  Ctrl-C (or SIGTERM) stops the swarm cleanly and still writes
+the best solutions found so far; every file is written atomically.
 """
 
 from __future__ import annotations
 
 import argparse
 import difflib
-import json
 import os
+import signal
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-DEFAULTS = {
-    "input": "f4",
-    "cps": "4-10",
-    "degrees": 3,
-    "closed": None,
-    "rational": False,
-    "fix_ends": True,
-    "init": "lsq",
-    "particles": 64,
-    "iterations": 2000,
-    "tol": None,
-    "seed": 0,
-    "out": None,
-}
+FIGURES = ("best", "sparsest", "all", "error_vs_cps")
+EXPORTS = ("json", "npz", "dxf", "svg")
 
-KEY_HELP = {
-    "input": "a point file (.csv/.txt/.xyz text, or .npy; one point per row) or a built-in "
-             "dataset: f1..f5, random_open, random_closed",
-    "cps": "control-point counts: an int, a list, or a range 'A-B'",
-    "degrees": "degrees: an int, a list, or a range 'A-B'",
-    "closed": "true for a closed curve (default: the dataset's own, else false)",
-    "rational": "optimise NURBS weights too",
-    "fix_ends": "pin an open curve's end control points to the first and last data points",
-    "init": "'lsq' (one particle seeded by least squares) or 'uniform'",
-    "particles": "particles per swarm",
-    "iterations": "iteration limit",
-    "tol": "stop once every swarm's mean distance (normalised frame) is <= tol",
-    "seed": "random seed",
-    "out": "output folder for solutions.json (nothing is written without one)",
+# key: (default, kind, help).  Kinds are checked by ``check_config``.
+SCHEMA = {
+    "input": ("f4", "str", "point file (.csv/.txt/.xyz text with or without a header, or .npy; "
+              "one point per row, 2 or 3 columns) or a built-in dataset: f1..f5, random_open, "
+              "random_closed, or outline:NAME (a curve of the benchmark outlines in data_dir)"),
+    "data_dir": (None, "str?", "folder holding outlines/outlines.npz (default: $SWARMCURVES_DATA, "
+                 "else ../shared/data)"),
+    "closed": (None, "bool?", "closed curve (default: the dataset's own; false for files)"),
+    "cps": ("4-10", "counts", "control-point counts: an int, a list, or a range 'A-B'"),
+    "degrees": (3, "counts", "degrees: an int, a list, or a range 'A-B' (1 = polygon)"),
+    "rational": (False, "bool", "optimise NURBS weights too"),
+    "fix_ends": (True, "bool", "pin an open curve's end control points to the first and last point"),
+    "init": ("lsq", ("lsq", "uniform"), "'lsq': one particle seeded by least squares; 'uniform'"),
+    "particles": (64, "int>=1", "particles per swarm"),
+    "iterations": (2000, "int>=1", "iteration limit (the paper: 2000)"),
+    "tol": (None, "float>=0?", "stop once every swarm's mean distance (normalised frame) <= tol"),
+    "inertia": (0.7298, "float", "PSO inertia (the paper's psi)"),
+    "cognitive": (1.49618, "float", "PSO weight of the personal best (phi_l)"),
+    "social": (1.49618, "float", "PSO weight of the swarm's best (phi_g)"),
+    "v_max": (0.1, "float>0", "velocity clamp per coordinate (normalised frame)"),
+    "patience": (100, "int>=1?", "restart a swarm after this many steps without progress "
+                 "(null: never)"),
+    "seed": (0, "int>=0", "random seed"),
+    "select_pct_diag": (0.35, "float>0", "tolerance for 'sparsest': mean error as % of the "
+                        "bounding-box diagonal"),
+    "out": (None, "str?", "output folder (nothing is written without one)"),
+    "figures": (["best", "error_vs_cps"], FIGURES, "PNG figures to write: " + ", ".join(FIGURES)),
+    "exports": (list(EXPORTS), EXPORTS, "files to write: " + ", ".join(EXPORTS)),
 }
 
 
 class ConfigError(ValueError):
-    """A bad config key or value; the CLI prints it and exits with code 2."""
+    """A bad config key, value or input file; the CLI prints it and exits with code 2."""
 
 
 def parse_counts(value, key: str) -> list[int]:
+    """An int, a list of ints, or a string like '4-10' or '2,3'."""
+    bad = ConfigError(f"{key}: expected an int, a list of ints or a range 'A-B', got {value!r}")
     if isinstance(value, bool):
-        raise ConfigError(f"{key}: expected an int, a list of ints or a range 'A-B', got {value!r}")
+        raise bad
     if isinstance(value, int):
         return [value]
+    if isinstance(value, list) and value and all(
+        isinstance(v, int) and not isinstance(v, bool) for v in value
+    ):
+        return list(value)
     if isinstance(value, str):
-        parts = [p.strip() for p in value.split(",") if p.strip()]
         out = []
         try:
-            for p in parts:
-                if "-" in p:
-                    a, b = (int(x) for x in p.split("-", 1))
-                    out.extend(range(a, b + 1))
-                else:
-                    out.append(int(p))
+            for part in (p.strip() for p in value.split(",") if p.strip()):
+                a, _, b = part.partition("-")
+                out.extend(range(int(a), int(b) + 1) if b else [int(a)])
         except ValueError:
-            raise ConfigError(f"{key}: expected an int, a list or a range 'A-B', got {value!r}") from None
-        return out
-    if isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) for v in value):
-        return list(value)
-    raise ConfigError(f"{key}: expected an int, a list of ints or a range 'A-B', got {value!r}")
+            raise bad from None
+        if out:
+            return out
+    raise bad
 
 
-def check_config(raw: dict) -> dict:
-    """Merge ``raw`` over the defaults; unknown keys and wrong types raise ConfigError."""
+def _check_value(key, value, kind):
+    optional = isinstance(kind, str) and kind.endswith("?")
+    if optional and value is None:
+        return None
+    kind = kind[:-1] if optional else kind
+    allowed = " or null" if optional else ""
+    if isinstance(kind, tuple):  # a choice, or a list of choices
+        if key in ("figures", "exports"):
+            items = [value] if isinstance(value, str) else value
+            if isinstance(value, bool) and not value:
+                return []
+            if not isinstance(items, list) or any(v not in kind for v in items):
+                raise ConfigError(f"{key}: expected a list from {', '.join(kind)}, got {value!r}")
+            return list(dict.fromkeys(items))
+        if value not in kind:
+            raise ConfigError(f"{key}: expected one of {', '.join(kind)}, got {value!r}")
+        return value
+    if kind == "counts":
+        return parse_counts(value, key)
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true or false{allowed}, got {value!r}")
+        return value
+    if kind == "str":
+        if not isinstance(value, str) or not value:
+            raise ConfigError(f"{key}: expected a non-empty string{allowed}, got {value!r}")
+        return value
+    if kind.startswith("int"):
+        low = int(kind.split(">=")[1])
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ConfigError(f"{key}: expected an integer >= {low}{allowed}, got {value!r}")
+        return value
+    # floats
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise ConfigError(f"{key}: expected a finite number{allowed}, got {value!r}")
+    if kind == "float>0" and value <= 0:
+        raise ConfigError(f"{key}: expected a number > 0{allowed}, got {value!r}")
+    if kind == "float>=0" and value < 0:
+        raise ConfigError(f"{key}: expected a number >= 0{allowed}, got {value!r}")
+    return float(value)
+
+
+def check_config(raw) -> dict:
+    """Merge ``raw`` over the defaults; unknown keys and bad values raise ConfigError."""
     if not isinstance(raw, dict):
         raise ConfigError(f"config: expected a mapping of keys to values, got {type(raw).__name__}")
     for key in raw:
-        if key not in DEFAULTS:
-            near = difflib.get_close_matches(str(key), DEFAULTS, n=1)
+        if key not in SCHEMA:
+            near = difflib.get_close_matches(str(key), SCHEMA, n=1)
             hint = f" (did you mean '{near[0]}'?)" if near else ""
-            raise ConfigError(f"unknown config key '{key}'{hint}; known keys: {', '.join(DEFAULTS)}")
-    cfg = {**DEFAULTS, **raw}
-    cfg["cps"] = parse_counts(cfg["cps"], "cps")
-    cfg["degrees"] = parse_counts(cfg["degrees"], "degrees")
-    for key in ("rational", "fix_ends"):
-        if not isinstance(cfg[key], bool):
-            raise ConfigError(f"{key}: expected true or false, got {cfg[key]!r}")
-    if cfg["closed"] is not None and not isinstance(cfg["closed"], bool):
-        raise ConfigError(f"closed: expected true or false, got {cfg['closed']!r}")
-    for key in ("particles", "iterations", "seed"):
-        v = cfg[key]
-        if isinstance(v, bool) or not isinstance(v, int) or v < (0 if key == "seed" else 1):
-            raise ConfigError(f"{key}: expected an integer >= {0 if key == 'seed' else 1}, got {v!r}")
-    if cfg["tol"] is not None and (isinstance(cfg["tol"], bool) or not isinstance(cfg["tol"], (int, float))
-                                   or cfg["tol"] < 0):
-        raise ConfigError(f"tol: expected a number >= 0 or null, got {cfg['tol']!r}")
-    if cfg["init"] not in ("lsq", "uniform"):
-        raise ConfigError(f"init: expected 'lsq' or 'uniform', got {cfg['init']!r}")
-    if not isinstance(cfg["input"], str):
-        raise ConfigError(f"input: expected a file path or a dataset name, got {cfg['input']!r}")
-    return cfg
+            raise ConfigError(f"unknown config key '{key}'{hint}; known keys: {', '.join(SCHEMA)}")
+    return {
+        key: _check_value(key, raw[key] if key in raw else default, kind)
+        for key, (default, kind, _) in SCHEMA.items()
+    }
 
 
 def read_points(path: Path) -> np.ndarray:
-    """Points from a text (.csv/.txt/.xyz, optional header) or .npy file."""
+    """Points from a text (.csv/.txt/.xyz, optional header) or .npy file; errors name the line."""
     if not path.is_file():
         raise ConfigError(f"input: no such file '{path}'")
     if path.suffix == ".npy":
         try:
-            return np.load(path, allow_pickle=False)
+            arr = np.load(path, allow_pickle=False)
         except Exception as exc:
             raise ConfigError(f"input: cannot read '{path}' as .npy: {exc}") from None
+        if arr.ndim != 2 or arr.shape[1] not in (2, 3) or not np.issubdtype(arr.dtype, np.number):
+            raise ConfigError(f"input: {path}: expected a numeric (N, 2) or (N, 3) array, got "
+                              f"{arr.dtype} {arr.shape}")
+        bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
+        if len(bad):
+            raise ConfigError(f"input: {path}: row {bad[0]} holds NaN or inf")
+        return arr.astype(float)
     rows, width = [], None
-    with open(path, encoding="utf-8") as fh:
-        for lineno, line in enumerate(fh, 1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            fields = text.replace(",", " ").split()
-            try:
-                values = [float(f) for f in fields]
-            except ValueError:
-                if not rows and width is None:  # a header line
+    try:
+        with open(path, encoding="utf-8") as fh:
+            for lineno, line in enumerate(fh, 1):
+                text = line.strip()
+                if not text or text.startswith("#"):
                     continue
-                raise ConfigError(f"input: {path}:{lineno}: not a number in {text!r}") from None
-            if width is not None and len(values) != width:
-                raise ConfigError(
-                    f"input: {path}:{lineno}: {len(values)} columns, expected {width} like the rows before"
-                )
-            if not np.all(np.isfinite(values)):
-                raise ConfigError(f"input: {path}:{lineno}: NaN or inf in {text!r}")
-            width = len(values)
-            rows.append(values)
+                fields = text.replace(",", " ").split()
+                try:
+                    values = [float(f) for f in fields]
+                except ValueError:
+                    if not rows and width is None:  # a header line
+                        width = -1
+                        continue
+                    raise ConfigError(f"input: {path}:{lineno}: not a number in {text!r}") from None
+                if width not in (None, -1) and len(values) != width:
+                    raise ConfigError(f"input: {path}:{lineno}: {len(values)} columns, expected "
+                                      f"{width} like the rows before")
+                if len(values) not in (2, 3):
+                    raise ConfigError(f"input: {path}:{lineno}: {len(values)} columns, expected 2 "
+                                      "or 3 (x y [z])")
+                if not np.all(np.isfinite(values)):
+                    raise ConfigError(f"input: {path}:{lineno}: NaN or inf in {text!r}")
+                width = len(values)
+                rows.append(values)
+    except UnicodeDecodeError:
+        raise ConfigError(f"input: '{path}' is not a text file") from None
     if not rows:
         raise ConfigError(f"input: '{path}' holds no points")
     return np.array(rows)
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def load_input(cfg) -> tuple[np.ndarray, bool, str]:
+    """``(points, closed, label)`` for the config's ``input``."""
+    from .datasets import BUILTIN_NAMES, builtin
+
+    name = cfg["input"]
+    if name in BUILTIN_NAMES:
+        pts, closed = builtin(name)
+        return pts, closed, name
+    if name.startswith("outline:"):
+        curve = name.split(":", 1)[1]
+        root = Path(cfg["data_dir"] or os.environ.get("SWARMCURVES_DATA") or "../shared/data")
+        path = root / "outlines" / "outlines.npz"
+        if not path.is_file():
+            raise ConfigError(f"data_dir: no outlines/outlines.npz under '{root}'")
+        with np.load(path) as npz:
+            if f"{curve}_points" not in npz:
+                names = sorted(k[: -len("_points")] for k in npz if k.endswith("_points")
+                               and not k.endswith("_random_points"))
+                raise ConfigError(f"input: no outline '{curve}' in {path}; have {', '.join(names)}")
+            return npz[f"{curve}_points"], bool(npz[f"{curve}_closed"]), name
+    return read_points(Path(name)), False, name
 
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="python -m swarmcurves_jax.run",
-        description="Fit B-spline / NURBS curves to ordered points with particle swarms.",
-        epilog="config keys:\n" + "\n".join(f"  {k:11s} {v}" for k, v in KEY_HELP.items()),
+        description="Fit B-spline / NURBS curves to ordered points with particle swarms. "
+        "A YAML config holds any of the keys below; command-line options override it.",
+        epilog="config keys (YAML):\n" + "\n".join(
+            f"  {k:15s} {h} [default: {d!r}]" for k, (d, _, h) in SCHEMA.items()
+        ) + "\n\nexit codes: 0 done (also after Ctrl-C, with the best so far), 2 bad config or input",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("config", nargs="?", help="YAML config file (default: the built-in example)")
-    ap.add_argument("--input", help=KEY_HELP["input"])
-    ap.add_argument("--cps", help=KEY_HELP["cps"])
-    ap.add_argument("--degrees", help=KEY_HELP["degrees"])
-    ap.add_argument("--iterations", type=int, help=KEY_HELP["iterations"])
-    ap.add_argument("--particles", type=int, help=KEY_HELP["particles"])
-    ap.add_argument("--seed", type=int, help=KEY_HELP["seed"])
-    ap.add_argument("--out", help=KEY_HELP["out"])
-    ap.add_argument("--force", action="store_true", help="write over an earlier run's files")
+    ap.add_argument("--input", help="point file or dataset (overrides 'input')")
+    ap.add_argument("--cps", help="e.g. 4-12 or 5,8,11")
+    ap.add_argument("--degrees", help="e.g. 2,3 or 1-3")
+    ap.add_argument("--closed", action=argparse.BooleanOptionalAction, default=None)
+    ap.add_argument("--rational", action=argparse.BooleanOptionalAction, default=None)
+    ap.add_argument("--iterations", type=int)
+    ap.add_argument("--particles", type=int)
+    ap.add_argument("--tol", type=float)
+    ap.add_argument("--seed", type=int)
+    ap.add_argument("--out", help="output folder")
+    ap.add_argument("--force", action="store_true", help="replace an earlier run's files in --out")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
 
 
@@ -183,54 +245,157 @@ def load_config(args) -> dict:
         if not path.is_file():
             raise ConfigError(f"config: no such file '{path}'")
         try:
-            raw = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"config: '{path}' is not valid YAML: {exc}".splitlines()[0]) from None
-    for key in ("input", "cps", "degrees", "iterations", "particles", "seed", "out"):
+            raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ConfigError(f"config: '{path}' is not valid YAML: {first}") from None
+        raw = {} if raw is None else raw
+        if not isinstance(raw, dict):
+            raise ConfigError(f"config: '{path}' must hold a mapping of keys, got {type(raw).__name__}")
+    for key in ("input", "cps", "degrees", "closed", "rational", "iterations", "particles", "tol",
+                "seed", "out"):
         value = getattr(args, key)
         if value is not None:
             raw[key] = value
     return check_config(raw)
 
 
+def planned_files(cfg, result_pairs) -> list[str]:
+    names = {"json": "solutions.json", "npz": "solutions.npz", "dxf": "curves.dxf",
+             "svg": "curves.svg"}
+    files = [names[e] for e in cfg["exports"]]
+    for fig in cfg["figures"]:
+        if fig == "all":
+            files += [f"solution_d{k}_n{n}.png" for k, n in result_pairs]
+        else:
+            files.append(f"{fig}.png")
+    return files
+
+
+def format_table(result, sparsest) -> str:
+    lines = str(result.table()).splitlines()
+    marks = [""] + [
+        "  <- best" * (c is result.best) + "  <- sparsest within tolerance" * (c is sparsest)
+        for c in result.solutions
+    ]
+    return "\n".join(line + mark for line, mark in zip(lines, marks))
+
+
+def write_outputs(cfg, result, points, out: Path, pairs) -> list[Path]:
+    from . import __version__
+    from .export import write_dxf, write_json, write_npz, write_svg
+
+    import jax
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    curves = result.solutions
+    if "json" in cfg["exports"]:
+        write_json(out / "solutions.json", curves, swarmcurves_jax=__version__, jax=jax.__version__,
+                   config=cfg, seed=result.seed, stop_reason=result.stop_reason,
+                   wall_time=result.wall_time, num_points=len(points))
+        written.append(out / "solutions.json")
+    if "npz" in cfg["exports"]:
+        write_npz(out / "solutions.npz", curves, points)
+        written.append(out / "solutions.npz")
+    if "dxf" in cfg["exports"]:
+        write_dxf(out / "curves.dxf", curves, points)
+        written.append(out / "curves.dxf")
+    if "svg" in cfg["exports"]:
+        if points.shape[1] == 2:
+            write_svg(out / "curves.svg", curves, points)
+            written.append(out / "curves.svg")
+        else:
+            print("note: no SVG for 3D points (SVG is 2D)")
+    if cfg["figures"]:
+        written += _write_figures(cfg, result, points, out)
+    return written
+
+
+def _write_figures(cfg, result, points, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .export import atomic_write
+    from .plotting import plot_error_vs_cps, plot_solution
+
+    def save(fig, name):
+        with atomic_write(out / name, "wb") as fh:
+            fig.savefig(fh, format="png", dpi=120)
+        plt.close(fig)
+        return out / name
+
+    written = []
+    chosen = {"best": result.best, "sparsest": result.sparsest(cfg["select_pct_diag"])}
+    for fig_name in cfg["figures"]:
+        if fig_name in chosen and chosen[fig_name] is not None:
+            written.append(save(plot_solution(chosen[fig_name], points), f"{fig_name}.png"))
+        elif fig_name == "all":
+            for c in result.solutions:
+                written.append(save(plot_solution(c, points), f"solution_d{c.degree}_n{c.n_ctrl}.png"))
+        elif fig_name == "error_vs_cps":
+            fig = plt.figure()
+            plot_error_vs_cps(result, ax=fig.add_subplot())
+            written.append(save(fig, "error_vs_cps.png"))
+    return written
+
+
+def _sigterm_to_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         cfg = load_config(args)
-        from .datasets import BUILTIN_NAMES, builtin
-
-        if cfg["input"] in BUILTIN_NAMES:
-            points, closed = builtin(cfg["input"])
-        else:
-            points, closed = read_points(Path(cfg["input"])), False
+        points, closed, label = load_input(cfg)
         if cfg["closed"] is not None:
             closed = cfg["closed"]
         out = Path(cfg["out"]) if cfg["out"] else None
-        if out is not None and (out / "solutions.json").exists() and not args.force:
-            raise ConfigError(f"out: '{out}' already holds solutions.json; pass --force to replace it")
-        from . import fit
+        pairs = [(k, n) for k in sorted(cfg["degrees"]) for n in sorted(cfg["cps"])]
+        if out is not None and not args.force:
+            clash = [f for f in planned_files(cfg, pairs) if (out / f).exists()]
+            if clash:
+                raise ConfigError(f"out: '{out}' already holds {', '.join(clash[:3])} from an earlier "
+                                  "run; pass --force to replace, or choose another folder")
+        from . import PSOParams, fit
 
-        result = fit(points, cps=cfg["cps"], degrees=cfg["degrees"], closed=closed,
-                     rational=cfg["rational"], fix_ends=cfg["fix_ends"], init=cfg["init"],
-                     particles=cfg["particles"], iterations=cfg["iterations"], tol=cfg["tol"],
-                     seed=cfg["seed"])
-    except ValueError as exc:  # ConfigError and fit's own input errors
+        params = PSOParams(cfg["inertia"], cfg["cognitive"], cfg["social"], cfg["v_max"],
+                           float("inf") if cfg["patience"] is None else float(cfg["patience"]))
+        previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
+        try:
+            result = fit(points, cps=cfg["cps"], degrees=cfg["degrees"], closed=closed,
+                         rational=cfg["rational"], fix_ends=cfg["fix_ends"], init=cfg["init"],
+                         particles=cfg["particles"], iterations=cfg["iterations"], tol=cfg["tol"],
+                         seed=cfg["seed"], params=params, progress=not args.quiet)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+    except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"{len(result.points)} points from {cfg['input']}, {'closed' if closed else 'open'}; "
-          f"stopped on {result.stop_reason} after {result.wall_time:.1f} s")
-    print(result.table())
+    except ValueError as exc:  # fit's own checks of the points and settings
+        print(f"error: input '{cfg['input']}': {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted before the first iterations finished; nothing written", file=sys.stderr)
+        return 130
+    why = {"iterations": f"the iteration limit ({cfg['iterations']})",
+           "tol": f"every swarm reaching tol = {cfg['tol']}",
+           "interrupted": "an interrupt (best solutions so far)"}[result.stop_reason]
+    print(f"{len(result.points)} points from {label}, {'closed' if closed else 'open'}; "
+          f"stopped on {why} after {result.wall_time:.1f} s")
+    sparsest = result.sparsest(cfg["select_pct_diag"])
+    print(format_table(result, sparsest))
     best = result.best
     print(f"best: degree {best.degree}, {best.n_ctrl} control points, mean error {best.error:.3e} "
           f"({best.error_pct_diag:.4f} % of the bounding-box diagonal)")
+    if sparsest is None:
+        print(f"sparsest within {cfg['select_pct_diag']} % of the diagonal: none")
     if out is not None:
-        from . import __version__
-
-        out.mkdir(parents=True, exist_ok=True)
-        doc = {"swarmcurves_jax": __version__, "config": cfg, "seed": result.seed,
-               "solutions": [c.to_dict() for c in result.solutions]}
-        _write_atomic(out / "solutions.json", json.dumps(doc, indent=1))
-        print(f"wrote {out / 'solutions.json'}")
+        for path in write_outputs(cfg, result, np.asarray(result.points), out, pairs):
+            print(f"wrote {path}")
     return 0
 
 

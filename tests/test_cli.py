@@ -1,54 +1,104 @@
-"""The command line, end to end in a subprocess, and its config errors (exit code 2)."""
+"""The command line end to end (subprocess, temp folders), and its refusals (exit code 2)."""
 
 import json
 import re
+import signal
 import subprocess
 import sys
+import time
+import xml.etree.ElementTree as ET
 
+import ezdxf
 import numpy as np
 import pytest
+import yaml
 
-from swarmcurves_jax import Curve
-from swarmcurves_jax.run import check_config, ConfigError, main
+from swarmcurves_jax.datasets import random_bspline_points
+from swarmcurves_jax.export import read_solutions
+from swarmcurves_jax.run import ConfigError, check_config, main
 
 
-def run(*args, cwd=None):
+def run(*args, cwd=None, timeout=300):
     return subprocess.run([sys.executable, "-m", "swarmcurves_jax.run", *args],
-                          capture_output=True, text=True, cwd=cwd, timeout=300)
+                          capture_output=True, text=True, cwd=cwd, timeout=timeout)
 
 
-def test_yaml_config_writes_loadable_solutions(tmp_path):
-    pts = np.c_[np.cos(np.linspace(0, 5, 80)), np.sin(np.linspace(0, 5, 80)), np.linspace(0, 1, 80)]
-    np.savetxt(tmp_path / "pts.csv", pts, delimiter=",", header="x,y,z", comments="")
-    (tmp_path / "job.yaml").write_text(
-        f"input: {tmp_path / 'pts.csv'}\ncps: 5-6\ndegrees: [2, 3]\niterations: 60\nout: {tmp_path / 'o'}\n"
-    )
-    proc = run(str(tmp_path / "job.yaml"))
+@pytest.mark.parametrize("dim,closed,rational,suffix", [
+    (2, False, False, ".csv"), (2, True, True, ".txt"), (3, False, True, ".npy"), (3, True, False, ".xyz"),
+])
+def test_end_to_end_every_output_reads_back(tmp_path, dim, closed, rational, suffix):
+    pts, _ = random_bspline_points(6, 3, closed, num_points=90, dim=dim, seed=4)
+    pts = pts * 30 + 7
+    src = tmp_path / f"pts{suffix}"
+    if suffix == ".npy":
+        np.save(src, pts)
+    else:
+        np.savetxt(src, pts, delimiter="," if suffix == ".csv" else " ",
+                   header="x,y" if suffix == ".csv" else "", comments="")
+    cfg = {"input": str(src), "closed": closed, "rational": rational, "cps": "5-6",
+           "degrees": [2, 3], "iterations": 60, "out": str(tmp_path / "out"),
+           "figures": ["best", "sparsest", "error_vs_cps"]}
+    (tmp_path / "job.yaml").write_text(yaml.safe_dump(cfg))
+    proc = run(str(tmp_path / "job.yaml"), "--quiet")
     assert proc.returncode == 0, proc.stderr
-    assert "best: degree" in proc.stdout and proc.stdout.count("\n") >= 6
-    doc = json.loads((tmp_path / "o" / "solutions.json").read_text())
-    curves = [Curve.from_dict(d) for d in doc["solutions"]]
+    assert "<- best" in proc.stdout and "stopped on the iteration limit (60)" in proc.stdout
+    out = tmp_path / "out"
+    curves = read_solutions(out / "solutions.json")
+    doc = json.loads((out / "solutions.json").read_text())
+    assert {"swarmcurves_jax", "jax", "config", "seed", "wall_time"} <= set(doc)
     assert [(c.degree, c.n_ctrl) for c in curves] == [(2, 5), (2, 6), (3, 5), (3, 6)]
-    assert curves[0].dim == 3 and doc["config"]["iterations"] == 60
-    again = run(str(tmp_path / "job.yaml"))
+    assert all(c.closed == closed and c.rational == rational and c.dim == dim for c in curves)
+    with np.load(out / "solutions.npz") as z:
+        np.testing.assert_array_equal(z["d3_n6_control_points"], curves[3].control_points)
+    splines = ezdxf.readfile(out / "curves.dxf").modelspace().query("SPLINE")
+    assert len(splines) == 4
+    u = np.linspace(0, 1, 200)
+    got = np.array([splines[3].construction_tool().point(x) for x in u])[:, :dim]
+    np.testing.assert_allclose(got, curves[3].evaluate(u), atol=1e-6)
+    if dim == 2:
+        assert len(ET.parse(out / "curves.svg").getroot().findall(".//{*}path")) == 4
+    else:
+        assert not (out / "curves.svg").exists() and "no SVG for 3D" in proc.stdout
+    for png in ("best.png", "error_vs_cps.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    again = run(str(tmp_path / "job.yaml"), "--quiet")
     assert again.returncode == 2 and "pass --force" in again.stderr
-    assert run(str(tmp_path / "job.yaml"), "--force").returncode == 0
+    assert run(str(tmp_path / "job.yaml"), "--quiet", "--force").returncode == 0
 
 
 def test_bare_run_fits_the_builtin_example(capsys):
-    assert main(["--iterations", "30"]) == 0
+    assert main(["--iterations", "30", "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "200 points from f4, open" in out and "best: degree 3" in out
+
+
+def test_help_lists_every_key():
+    proc = run("--help")
+    assert proc.returncode == 0
+    for key in check_config({}):
+        assert key in proc.stdout
 
 
 @pytest.mark.parametrize(
     "raw,message",
     [
         ({"iteration": 5}, "unknown config key 'iteration' (did you mean 'iterations'?)"),
-        ({"cps": "a-b"}, "cps: expected an int, a list or a range"),
+        ({"degres": 3}, "unknown config key 'degres' (did you mean 'degrees'?)"),
+        ({"cps": "a-b"}, "cps: expected an int, a list of ints or a range 'A-B'"),
+        ({"cps": []}, "cps: expected an int, a list of ints or a range 'A-B'"),
+        ({"degrees": True}, "degrees: expected an int, a list of ints"),
         ({"particles": 0}, "particles: expected an integer >= 1"),
+        ({"iterations": 2.5}, "iterations: expected an integer >= 1"),
         ({"rational": "yes"}, "rational: expected true or false"),
+        ({"closed": 1}, "closed: expected true or false or null"),
         ({"tol": -1}, "tol: expected a number >= 0 or null"),
+        ({"v_max": 0}, "v_max: expected a number > 0"),
+        ({"inertia": "fast"}, "inertia: expected a finite number"),
+        ({"seed": -3}, "seed: expected an integer >= 0"),
+        ({"init": "random"}, "init: expected one of lsq, uniform"),
+        ({"figures": ["best", "nice"]}, "figures: expected a list from best, sparsest, all"),
+        ({"exports": ["step"]}, "exports: expected a list from json, npz, dxf, svg"),
+        ({"input": 5}, "input: expected a non-empty string"),
     ],
 )
 def test_bad_config_values(raw, message):
@@ -56,15 +106,66 @@ def test_bad_config_values(raw, message):
         check_config(raw)
 
 
-def test_bad_files_exit_2_with_the_line(tmp_path):
-    (tmp_path / "bad.txt").write_text("x y\n1 2\n3 4 5\n")
+def test_bad_configs_and_files_exit_2_with_one_clear_line(tmp_path):
+    (tmp_path / "ragged.txt").write_text("x y\n1 2\n3 4 5\n")
     (tmp_path / "nan.txt").write_text("1 2\nnan 4\n")
+    (tmp_path / "word.csv").write_text("1,2\n3,four\n")
+    (tmp_path / "wide.txt").write_text("1 2 3 4\n")
+    (tmp_path / "empty.txt").write_text("# nothing\n")
+    (tmp_path / "few.txt").write_text("0 0\n1 1\n2 0\n")
+    (tmp_path / "bad.yaml").write_text("cps: [4, 5\n")
+    (tmp_path / "list.yaml").write_text("- 1\n- 2\n")
+    (tmp_path / "typo.yaml").write_text("iteratons: 5\n")
+    np.save(tmp_path / "flat.npy", np.zeros(10))
+    (tmp_path / "nodata.yaml").write_text(f"input: outline:Goldi_path0\ndata_dir: {tmp_path}\n")
     cases = [
-        (["--input", str(tmp_path / "bad.txt")], "bad.txt:3: 3 columns, expected 2"),
+        (["--input", str(tmp_path / "ragged.txt")], "ragged.txt:3: 3 columns, expected 2"),
         (["--input", str(tmp_path / "nan.txt")], "nan.txt:2: NaN or inf"),
-        (["--input", str(tmp_path / "missing.csv")], "no such file"),
+        (["--input", str(tmp_path / "word.csv")], "word.csv:2: not a number"),
+        (["--input", str(tmp_path / "wide.txt")], "wide.txt:1: 4 columns, expected 2 or 3"),
+        (["--input", str(tmp_path / "empty.txt")], "holds no points"),
+        (["--input", str(tmp_path / "few.txt")], "3 points are too few for 10 control points"),
+        (["--input", str(tmp_path / "flat.npy")], "expected a numeric (N, 2) or (N, 3) array"),
+        (["--input", str(tmp_path / "missing.csv")], "input: no such file"),
+        ([str(tmp_path / "nodata.yaml")], "data_dir: no outlines/outlines.npz under"),
         (["--cps", "3", "--degrees", "3"], "3 control points are too few"),
+        ([str(tmp_path / "bad.yaml")], "is not valid YAML"),
+        ([str(tmp_path / "list.yaml")], "must hold a mapping of keys"),
+        ([str(tmp_path / "typo.yaml")], "unknown config key 'iteratons' (did you mean 'iterations'?)"),
+        ([str(tmp_path / "none.yaml")], "config: no such file"),
     ]
     for args, message in cases:
-        proc = run(*args, "--iterations", "5")
-        assert proc.returncode == 2 and message in proc.stderr, proc.stderr
+        proc = run(*args, "--iterations", "5", "--quiet", "--out", str(tmp_path / "o"), timeout=120)
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert message in proc.stderr and proc.stderr.count("\n") == 1, (args, proc.stderr)
+        assert not (tmp_path / "o").exists()  # nothing written, nothing started
+
+
+def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
+    (tmp_path / "outlines").mkdir()
+    ring = np.c_[np.cos(np.linspace(0, 6, 60)), np.sin(np.linspace(0, 6, 60))]
+    np.savez(tmp_path / "outlines" / "outlines.npz", ring_points=ring, ring_closed=np.array(True))
+    (tmp_path / "job.yaml").write_text(f"input: outline:ring\ndata_dir: {tmp_path}\ncps: 5\n"
+                                       "iterations: 20\n")
+    assert main([str(tmp_path / "job.yaml"), "--quiet"]) == 0
+    assert "60 points from outline:ring, closed" in capsys.readouterr().out
+    (tmp_path / "job.yaml").write_text(f"input: outline:square\ndata_dir: {tmp_path}\n")
+    assert main([str(tmp_path / "job.yaml"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "no outline 'square'" in err and "have ring" in err
+
+
+def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarmcurves_jax.run", "--iterations", "200000", "--quiet",
+         "--out", str(tmp_path / "o")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    time.sleep(12)  # compile and run a few chunks
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert "stopped on an interrupt (best solutions so far)" in out
+    curves = read_solutions(tmp_path / "o" / "solutions.json")
+    assert len(curves) == 7 and all(np.isfinite(c.error) for c in curves)
+    assert not list((tmp_path / "o").glob(".*.part"))

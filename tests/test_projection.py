@@ -46,3 +46,17 @@ def test_polygon_distance_is_point_to_segment():
     pts = np.array([[0.5, 0.3], [1.4, 0.5], [2.0, 2.0], [-1.0, 0.0]])
     dist, _ = project_points(pts, ctrl, np.ones(3), t, 1, False)
     np.testing.assert_allclose(dist, [0.3, 0.4, np.sqrt(2.0), 1.0], atol=1e-12)
+
+
+def test_points_on_a_fast_self_approaching_curve_have_zero_distance():
+    # A clamped quintic whose fast end passes within 1e-3 of its own middle: ranking sample
+    # points (not chords) once projected some of these points onto the wrong branch.
+    rng = np.random.default_rng(0)
+    for k in (1, 2, 3, 5):  # the fourth draw of this generator is the case that failed
+        n = k + 4
+        ctrl = rng.uniform(-1, 1, (n, 2))
+    t = make_knots(n, 5, False)
+    u = np.linspace(0, 1, 400)
+    pts = curve_derivatives(u, ctrl, np.ones(n), t, 5, False, max_nu=0)[0]
+    dist, foot = project_points(pts, ctrl, np.ones(n), t, 5, False)
+    assert dist.max() < 1e-9
