@@ -2,10 +2,30 @@
 
 from __future__ import annotations
 
+import difflib
 import numbers
 from collections.abc import Iterable
 
 import numpy as np
+
+
+class UnknownArgumentError(TypeError, ValueError):
+    """An unknown keyword argument: a ``ValueError`` like every input error, and the
+    ``TypeError`` Python raises for one."""
+
+
+def check_no_unknown(unknown: dict, known) -> None:
+    if unknown:
+        name = sorted(unknown)[0]
+        near = difflib.get_close_matches(name, known, n=1)
+        hint = f" (did you mean '{near[0]}'?)" if near else ""
+        raise UnknownArgumentError(f"fit() got an unexpected keyword argument '{name}'{hint}")
+
+
+def check_bool(value, name: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def check_points(points) -> np.ndarray:
@@ -15,9 +35,7 @@ def check_points(points) -> np.ndarray:
     except Exception as exc:  # ragged lists and the like
         raise ValueError(f"points must be an array-like of shape (N, 2) or (N, 3): {exc}") from None
     if arr.dtype == object or not (
-        np.issubdtype(arr.dtype, np.integer)
-        or np.issubdtype(arr.dtype, np.floating)
-        or arr.dtype == np.bool_
+        np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)
     ):
         if np.issubdtype(arr.dtype, np.complexfloating):
             raise ValueError("points must be real numbers, got a complex array")
@@ -31,6 +49,8 @@ def check_points(points) -> np.ndarray:
         raise ValueError(
             f"points must have shape (N, 2) or (N, 3), one point per row, got {arr.shape}{hint}"
         )
+    if arr.shape[0] == 0:
+        raise ValueError("points is empty: give at least as many points as control points")
     arr = arr.astype(np.float64)
     bad = ~np.all(np.isfinite(arr), axis=1)
     if np.any(bad):
@@ -69,9 +89,9 @@ def check_pairs(cps, degrees, closed: bool) -> list[tuple[int, int]]:
     pairs = sorted((k, n) for k in ks for n in ns)
     for k, n in pairs:
         if n < k + 1:
-            kind = "closed" if closed else "open"
+            kind = "a closed" if closed else "an open"
             raise ValueError(
-                f"cps: {n} control points are too few for an {kind} curve of degree {k} "
+                f"cps: {n} control points are too few for {kind} curve of degree {k} "
                 f"(needs >= {k + 1}); use cps >= {k + 1} or a lower degree"
             )
     return pairs
@@ -101,3 +121,21 @@ def check_weight_bounds(bounds) -> tuple[float, float]:
             f"weight_bounds must satisfy 0 < low < high (finite), got ({lo}, {hi})"
         )
     return lo, hi
+
+
+def check_params(params):
+    """A ``PSOParams`` whose fields are finite (``patience`` may be inf) and sensible."""
+    from .pso import PSOParams
+
+    if not isinstance(params, PSOParams):
+        raise ValueError(f"params must be a PSOParams, got {type(params).__name__}")
+    for name in ("inertia", "cognitive", "social", "v_max"):
+        value = np.asarray(getattr(params, name), dtype=float)
+        if value.shape != () or not np.isfinite(value):
+            raise ValueError(f"params.{name} must be a finite number, got {getattr(params, name)!r}")
+    if not float(params.v_max) > 0:
+        raise ValueError(f"params.v_max must be > 0, got {params.v_max!r}")
+    patience = np.asarray(params.patience, dtype=float)
+    if patience.shape != () or np.isnan(patience) or patience < 1:
+        raise ValueError(f"params.patience must be >= 1 (inf: never restart), got {params.patience!r}")
+    return params

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import functools
+import inspect
 import math
+import os
 import time
+import warnings
 from typing import Callable, NamedTuple
 
 import jax
@@ -13,7 +16,10 @@ import numpy as np
 
 from . import pso
 from ._validation import (
+    check_bool,
+    check_no_unknown,
     check_pairs,
+    check_params,
     check_points,
     check_positive_int,
     check_tol,
@@ -30,12 +36,15 @@ __all__ = ["fit", "normalise", "default_num_samples"]
 
 
 def normalise(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """SPEC §1 normalisation: ``(points - c) / s`` inside ``[-1, 1]^D``, aspect kept."""
+    """SPEC §1 normalisation: ``(points - c) / s`` inside ``[-1, 1]^D``, aspect kept.
+
+    Points that all coincide have no extent; their scale is taken as 1.
+    """
     lo, hi = points.min(axis=0), points.max(axis=0)
     center = (lo + hi) / 2
     scale = float(np.max(hi - lo) / 2)
     if not scale > 0:
-        raise ValueError("points must not all coincide: their bounding box is a single point")
+        scale = 1.0
     return (points - center) / scale, center, scale
 
 
@@ -225,7 +234,9 @@ def fit(
     chunk_size: int = 200,
     callback: Callable[[int, np.ndarray], object] | None = None,
     progress: bool = False,
+    max_fitness_points: int = 2000,
     dtype=jnp.float32,
+    **unknown,
 ) -> FitResult:
     """Fit B-spline (or NURBS) curves with every requested degree and control-point count.
 
@@ -269,6 +280,10 @@ def fit(
     callback : callable, optional
         ``callback(iteration, best_fitness)`` after every chunk, ``best_fitness`` of shape
         (num_solutions,).
+    max_fitness_points : int
+        The swarm's fitness uses at most this many of the points, evenly spread along
+        their order (all of them when there are fewer); the reported errors always use
+        every point.  Keeps time and memory bounded for huge scans.
     progress : bool
         Show a progress bar (tqdm) with the best error per degree.  Quiet by default.
         Ctrl-C stops the run cleanly: the result holds the best solutions found so far
@@ -290,8 +305,12 @@ def fit(
     True
     """
     start = time.perf_counter()
+    check_no_unknown(unknown, _FIT_ARGS)
     pts = check_points(points)
-    closed, rational = bool(closed), bool(rational)
+    closed, rational = check_bool(closed, "closed"), check_bool(rational, "rational")
+    fix_ends, progress = check_bool(fix_ends, "fix_ends"), check_bool(progress, "progress")
+    if callback is not None and not callable(callback):
+        raise ValueError(f"callback must be callable or None, got {callback!r}")
     pairs = check_pairs(cps, degrees, closed)
     num_particles = check_positive_int(particles, "particles")
     iterations = check_positive_int(iterations, "iterations")
@@ -316,23 +335,33 @@ def fit(
         raise ValueError(f"dtype must be float32 or float64, got {dtype}")
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         raise ValueError("dtype float64 needs jax.config.update('jax_enable_x64', True)")
-    params = pso.default_params() if params is None else params
+    params = check_params(pso.default_params() if params is None else params)
+    max_fitness_points = check_positive_int(max_fitness_points, "max_fitness_points")
+    root_key = _root_key(seed)
 
     norm_pts, center, scale = normalise(pts)
+    if np.ptp(pts, axis=0).max() == 0:
+        warnings.warn("points all coincide: every curve collapses onto that point", UserWarning,
+                      stacklevel=2)
+    fit_pts = _canonical_order(norm_pts)
+    if len(fit_pts) > max_fitness_points:
+        fit_pts = fit_pts[np.unique(np.linspace(0, len(fit_pts) - 1, max_fitness_points).round()
+                                    .astype(int))]
     dim = pts.shape[1]
     space = _Space(n_pad=n_max, dim=dim, rational=rational)
-    ends = norm_pts[[0, -1]] if (fix_ends and not closed) else None
+    ends = fit_pts[[0, -1]] if (fix_ends and not closed) else None
     boxes = _boxes(pairs, space, weight_bounds, ends, dtype)
-    seeds = _seeds(pairs, space, norm_pts, closed, ends, dtype)
+    _check_memory(len(pairs), num_particles, boxes.mask.shape[1], len(fit_pts), num_samples,
+                  dim, jnp.dtype(dtype).itemsize)
+    seeds = _seeds(pairs, space, fit_pts, closed, ends, dtype)
     bases = _stack_bases(pairs, closed, rational, num_samples, n_max, dtype)
     state = _empty_state(len(pairs), num_particles, boxes.mask.shape[1], dtype)
-    root_key = _root_key(seed)
     pair_ids = np.array(pairs, np.int32)
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in params))
     tol_arr = np.asarray(-1.0 if tol is None else tol, dtype)
     max_steps = np.asarray(iterations, np.int32)
     steps = min(chunk_size, iterations)
-    data = norm_pts.astype(dtype)
+    data = fit_pts.astype(dtype)
 
     # Device arrays from the start: host arrays would key a second cache entry.
     state, params, boxes, bases, seeds, pair_ids, data, tol_arr, max_steps = jax.device_put(
@@ -386,6 +415,53 @@ def fit(
     )
 
 
+def _canonical_order(points: np.ndarray) -> np.ndarray:
+    """``points`` or ``points[::-1]``, whichever is lexicographically first.
+
+    The swarm sees the same array for an input and its reverse, so both give the same
+    curves (then oriented like each input): reversing the input never changes the fit.
+    """
+    fwd, rev = points.ravel(), points[::-1].ravel()
+    differ = np.flatnonzero(fwd != rev)
+    return points if len(differ) == 0 or fwd[differ[0]] < rev[differ[0]] else points[::-1]
+
+
+def _runs_backwards(foot: np.ndarray, closed: bool) -> bool:
+    """Whether the data's foot-point parameters mostly decrease along the data's order.
+
+    A majority vote of the steps' signs: their sum would telescope to last minus first,
+    which says nothing when the input's ends coincide.
+    """
+    steps = np.diff(foot)
+    if closed:
+        steps = (steps + 0.5) % 1.0 - 0.5
+    return int(np.sum(np.sign(steps))) < 0
+
+
+def _available_memory() -> int | None:
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _check_memory(num_swarms, num_particles, size, num_points, num_samples, dim, itemsize):
+    """Refuse up front, with the estimate, a run whose device arrays cannot fit in memory."""
+    per_particle = (
+        num_points * (4 * dim + 8)  # gathered sample data and the Newton temporaries
+        + num_samples * (4 * dim + 4)  # curve samples and derivatives
+        + 6 * size  # position, velocity, pbest, random draws, restart candidates
+    )
+    need = 2 * num_swarms * num_particles * per_particle * itemsize  # x2: XLA temporaries
+    free = _available_memory()
+    if free is not None and need > 0.8 * free:
+        raise ValueError(
+            f"fit would need about {need / 2**30:.1f} GiB of memory for {num_swarms} swarms x "
+            f"{num_particles} particles x {num_points} points, but {free / 2**30:.1f} GiB are "
+            "free; lower particles, the number of (degree, cps) pairs, or max_fitness_points"
+        )
+
+
 def _progress_bar(iterations, pairs):
     from tqdm.auto import tqdm
 
@@ -409,7 +485,9 @@ def _make_curve(k, n, q, fitness, steps, space, closed, norm_pts, center, scale,
     else:
         weights = np.ones(n)
     t = make_knots(n, k, closed)
-    dist, _ = project_points(norm_pts, ctrl, weights, t, k, closed)
+    dist, foot = project_points(norm_pts, ctrl, weights, t, k, closed)
+    if _runs_backwards(foot, closed):  # same geometry, traversed like the input
+        ctrl, weights = ctrl[::-1], weights[::-1]
     diag = float(np.linalg.norm(np.ptp(norm_pts, axis=0)))
     error = float(np.mean(dist))
     return Curve(
@@ -422,7 +500,7 @@ def _make_curve(k, n, q, fitness, steps, space, closed, norm_pts, center, scale,
         error=error,
         max_error=float(np.max(dist)),
         rms_error=float(np.sqrt(np.mean(dist**2))),
-        error_pct_diag=100.0 * error / diag,
+        error_pct_diag=100.0 * error / diag if diag > 0 else (0.0 if error == 0 else math.inf),
         residuals=dist,
         info={
             "iterations": steps,
@@ -430,3 +508,7 @@ def _make_curve(k, n, q, fitness, steps, space, closed, norm_pts, center, scale,
             "seed": seed if isinstance(seed, int) else None,
         },
     )
+
+
+#: fit's keyword names, for the "did you mean" of an unknown one.
+_FIT_ARGS = tuple(p for p in inspect.signature(fit).parameters if p != "unknown")
