@@ -161,18 +161,39 @@ def chord_parameters(points: np.ndarray, closed: bool) -> np.ndarray:
     return u[:-1] if closed else u
 
 
-def least_squares_ctrl(points, n, k, closed, ends=None) -> np.ndarray:
-    """Linear least-squares control points on chord-length parameters (the swarm's seed).
-
-    With ``ends`` the first and last control points are fixed and the rest solved for.
-    """
-    u = chord_parameters(points, closed)
-    b = design_matrix(u, make_knots(n, k, closed), k, closed=closed)
+def _lsq(b, points, ends):
     if ends is None:
         return np.linalg.lstsq(b, points, rcond=None)[0]
     rhs = points - np.outer(b[:, 0], ends[0]) - np.outer(b[:, -1], ends[1])
     inner = np.linalg.lstsq(b[:, 1:-1], rhs, rcond=None)[0]
     return np.vstack([ends[0], inner, ends[1]])
+
+
+def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20) -> np.ndarray:
+    """Linear least-squares control points with parameter correction (the swarm's seed).
+
+    Starts from chord-length parameters, then ``rounds`` times moves every point's
+    parameter to its nearest point on the current curve (a 2048-sample grid) and solves
+    again (Hoschek's correction).  Chord lengths alone misplace the parameters of looping
+    curves; measured on random closed cubics the correction lifts recovery from 4 to 6
+    of 12 (``benchmarks/recovery_rates.py``).  With ``ends`` the first and last control
+    points are fixed.
+    """
+    t = make_knots(n, k, closed)
+    ctrl = _lsq(design_matrix(chord_parameters(points, closed), t, k, closed=closed), points, ends)
+    grid = np.linspace(0.0, 1.0, 2048, endpoint=not closed)
+    dense = design_matrix(grid, t, k, closed=closed)
+    p2 = np.sum(points**2, axis=1)[:, None]
+    best, best_err = ctrl, np.inf
+    for _ in range(rounds + 1):
+        samples = dense @ ctrl
+        d2 = p2 - 2.0 * points @ samples.T + np.sum(samples**2, axis=1)[None, :]
+        j = np.argmin(d2, axis=1)
+        err = np.mean(np.sqrt(np.maximum(d2[np.arange(len(points)), j], 0.0)))
+        if err < best_err:  # a correction can also fold the parameters: keep the best
+            best, best_err = ctrl, err
+        ctrl = _lsq(design_matrix(grid[j], t, k, closed=closed), points, ends)
+    return best
 
 
 def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
@@ -347,6 +368,10 @@ def fit(
     if len(fit_pts) > max_fitness_points:
         fit_pts = fit_pts[np.unique(np.linspace(0, len(fit_pts) - 1, max_fitness_points).round()
                                     .astype(int))]
+    # The swarm's data, and the host's seed and ends, in the swarm's precision: the host
+    # then works on exactly the numbers the device sees, so shifting or scaling the input
+    # (which moves norm_pts by rounding only) cannot tip the seed's nearest-point choices.
+    fit_pts = fit_pts.astype(dtype).astype(np.float64)
     dim = pts.shape[1]
     space = _Space(n_pad=n_max, dim=dim, rational=rational)
     ends = fit_pts[[0, -1]] if (fix_ends and not closed) else None
