@@ -155,14 +155,15 @@ def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
     assert "no outline 'square'" in err and "have ring" in err
 
 
-def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig):
     proc = subprocess.Popen(
         [sys.executable, "-m", "swarmcurves_jax.run", "--iterations", "200000", "--quiet",
          "--out", str(tmp_path / "o")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     time.sleep(12)  # compile and run a few chunks
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
     assert "stopped on an interrupt (best solutions so far)" in out

@@ -164,3 +164,13 @@ def test_bad_input_raises_a_clear_error(kwargs, message):
 def test_unknown_keyword_is_a_type_error():
     with pytest.raises(TypeError, match="unexpected keyword argument 'particle'"):
         fit(spline_points(13, 5, False), particle=10)
+
+
+def test_callback_without_tol_reports_every_chunk_in_order():
+    pts = spline_points(14, 5, False)
+    calls = []
+    result = fit(pts, cps=[4, 5], iterations=250, chunk_size=100,
+                 callback=lambda i, best: calls.append((i, np.array(best))))
+    assert [i for i, _ in calls] == [100, 200, 250]
+    np.testing.assert_allclose(calls[-1][1], result.history[:, -1], rtol=1e-6)
+    assert np.all(calls[1][1] <= calls[0][1])  # the best ever never worsens
