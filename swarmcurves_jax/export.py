@@ -19,7 +19,6 @@ import numpy as np
 
 from .curves import SCHEMA_VERSION, Curve
 from .interop import bezier_segments, clamped_form
-from .projection import project_points
 
 __all__ = [
     "atomic_write",

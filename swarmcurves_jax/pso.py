@@ -35,6 +35,7 @@ __all__ = [
 ]
 
 FitnessFn = Callable[[jax.Array], jax.Array]
+_NO_LIMIT = 2**31 - 1  # max_steps default: int32 max
 
 
 class PSOParams(NamedTuple):
@@ -182,7 +183,7 @@ def run(
     fitness_fn: FitnessFn,
     num_steps: int,
     tol: jax.Array | float = -1.0,
-    max_steps: jax.Array | int = jnp.iinfo(jnp.int32).max,
+    max_steps: jax.Array | int = _NO_LIMIT,
 ) -> tuple[PSOState, PSOInfo]:
     """``num_steps`` steps in one ``lax.scan``; info is stacked along the first axis.
 

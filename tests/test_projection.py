@@ -18,7 +18,7 @@ def brute_force(points, ctrl, w, t, k, closed):
         j = int(np.argmin(d2))
         lo, hi = u[max(j - 1, 0)], u[min(j + 1, len(u) - 1)]
 
-        def f(x):
+        def f(x, p=p):
             return np.sum((curve_derivatives([x], ctrl, w, t, k, closed, 0)[0][0] - p) ** 2)
 
         res = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": 1e-14})
