@@ -16,15 +16,9 @@ import resource
 import time
 
 import jax
-import numpy as np
 
 from swarmcurves_jax import fit
-
-
-def f4_points(num_points: int = 200) -> np.ndarray:
-    """SPEC §4 f4: ``0.5 sin(x) + exp(-30 x^2)``, x in [-2, 2], evenly spaced in x."""
-    x = np.linspace(-2.0, 2.0, num_points)
-    return np.c_[x, 0.5 * np.sin(x) + np.exp(-30.0 * x**2)]
+from swarmcurves_jax.datasets import analytic_points
 
 
 def main(argv=None):
@@ -32,12 +26,20 @@ def main(argv=None):
     ap.add_argument("--iterations", type=int, default=2000)
     ap.add_argument("--particles", type=int, default=64)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--progress", action="store_true",
-                    help="also time warm runs with the progress bar on (its overhead)")
+    ap.add_argument(
+        "--progress",
+        action="store_true",
+        help="also time warm runs with the progress bar on (its overhead)",
+    )
     args = ap.parse_args(argv)
-    pts = f4_points()
-    kwargs = dict(cps=range(4, 11), degrees=(1, 2, 3), particles=args.particles,
-                  iterations=args.iterations, seed=0)
+    pts = analytic_points("f4")
+    kwargs = dict(
+        cps=range(4, 11),
+        degrees=(1, 2, 3),
+        particles=args.particles,
+        iterations=args.iterations,
+        seed=0,
+    )
     t0 = time.perf_counter()
     result = fit(pts, **kwargs)
     cold = time.perf_counter() - t0
@@ -58,23 +60,33 @@ def main(argv=None):
             with_bar.append(time.perf_counter() - t0)
     evals = len(result.solutions) * args.particles * args.iterations
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"device        : {jax.devices()[0].device_kind} ({jax.default_backend()}), "
-          f"{platform.processor() or platform.machine()}, jax {jax.__version__}")
-    print(f"workload      : 21 swarms x {args.particles} particles x {args.iterations} "
-          f"iterations, N = {len(pts)}, float32")
+    print(
+        f"device        : {jax.devices()[0].device_kind} ({jax.default_backend()}), "
+        f"{platform.processor() or platform.machine()}, jax {jax.__version__}"
+    )
+    print(
+        f"workload      : 21 swarms x {args.particles} particles x {args.iterations} "
+        f"iterations, N = {len(pts)}, float32"
+    )
     print(f"cold (compile): {cold:.2f} s")
-    print(f"warm          : {min(warm):.2f} s (min of {args.repeats}; all: "
-          f"{', '.join(f'{w:.2f}' for w in warm)})")
+    print(
+        f"warm          : {min(warm):.2f} s (min of {args.repeats}; all: "
+        f"{', '.join(f'{w:.2f}' for w in warm)})"
+    )
     if with_bar:
-        print(f"warm, progress: {min(with_bar):.2f} s (min of {args.repeats}): overhead "
-              f"{100 * (min(with_bar) / min(warm) - 1):+.1f} %")
+        print(
+            f"warm, progress: {min(with_bar):.2f} s (min of {args.repeats}): overhead "
+            f"{100 * (min(with_bar) / min(warm) - 1):+.1f} %"
+        )
     print(f"throughput    : {evals / min(warm):.3e} particle-evaluations/s")
     print(f"peak RSS      : {peak_mib:.0f} MiB (whole process)")
     print("best per degree:")
     for k in (1, 2, 3):
         best = min((c for c in result.solutions if c.degree == k), key=lambda c: c.error)
-        print(f"  degree {k}: n={best.n_ctrl:2d} error={best.error:.3e} "
-              f"({best.error_pct_diag:.4f} % of diagonal)")
+        print(
+            f"  degree {k}: n={best.n_ctrl:2d} error={best.error:.3e} "
+            f"({best.error_pct_diag:.4f} % of diagonal)"
+        )
 
 
 if __name__ == "__main__":

@@ -15,8 +15,11 @@ import numpy as np
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import random_bspline_points
 
-CASES = [("open 2D, 6 cp", 6, False, 2, range(4, 9)), ("closed 2D, 8 cp", 8, True, 2, range(6, 11)),
-         ("open 3D, 6 cp", 6, False, 3, range(4, 9))]
+CASES = [
+    ("open 2D, 6 cp", 6, False, 2, range(4, 9)),
+    ("closed 2D, 8 cp", 8, True, 2, range(6, 11)),
+    ("open 3D, 6 cp", 6, False, 3, range(4, 9)),
+]
 
 
 def main(argv=None):
@@ -32,8 +35,11 @@ def main(argv=None):
             errs.append(r[3, n].error)
             print(f"  {name} seed {seed}: {errs[-1]:.2e}", flush=True)
         errs = np.array(errs)
-        print(f"{name}: recovered (<= 2e-3) {np.sum(errs <= 2e-3)}/{len(errs)}, "
-              f"median {np.median(errs):.2e}, worst {errs.max():.2e}", flush=True)
+        print(
+            f"{name}: recovered (<= 2e-3) {np.sum(errs <= 2e-3)}/{len(errs)}, "
+            f"median {np.median(errs):.2e}, worst {errs.max():.2e}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -29,10 +29,16 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--calls", type=int, default=1000)
     args = ap.parse_args(argv)
-    shapes = [(n, d, i % 2 == 1) for i, (n, d) in enumerate(
-        (n, d) for n in (60, 150, 300, 600) for d in (2, 3))]
-    data = {s: random_bspline_points(6, 3, s[2], num_points=s[0], dim=s[1], seed=i)[0]
-            for i, s in enumerate(shapes)}
+    if args.calls < 200:
+        ap.error("--calls must be >= 200 (the first block of 100 fills the compile cache)")
+    shapes = [
+        (n, d, i % 2 == 1)
+        for i, (n, d) in enumerate((n, d) for n in (60, 150, 300, 600) for d in (2, 3))
+    ]
+    data = {
+        s: random_bspline_points(6, 3, s[2], num_points=s[0], dim=s[1], seed=i)[0]
+        for i, s in enumerate(shapes)
+    }
     first = {}
     mismatches = 0
     rows = []
@@ -50,15 +56,23 @@ def main(argv=None):
         if call % 100 == 0:
             now = time.perf_counter()
             rows.append((call, rss_mib(), (now - t_block) / 100))
-            print(f"calls {call:5d}: RSS {rows[-1][1]:7.1f} MiB, {1000 * rows[-1][2]:6.1f} ms/call",
-                  flush=True)
+            print(
+                f"calls {call:5d}: RSS {rows[-1][1]:7.1f} MiB, {1000 * rows[-1][2]:6.1f} ms/call",
+                flush=True,
+            )
             t_block = now
-    print(f"start RSS {rss0:.1f} MiB; after the first block {rows[0][1]:.1f} MiB; "
-          f"at the end {rows[-1][1]:.1f} MiB (growth after the compile cache filled: "
-          f"{rows[-1][1] - rows[1][1]:+.1f} MiB over {args.calls - 200} calls)")
-    print(f"time per call: block 2 {1000 * rows[1][2]:.1f} ms, last block {1000 * rows[-1][2]:.1f} ms")
-    print(f"repeated (shape, seed) runs that differed from their first run: {mismatches} "
-          f"of {args.calls - len(first)}")
+    print(
+        f"start RSS {rss0:.1f} MiB; after the first block {rows[0][1]:.1f} MiB; "
+        f"at the end {rows[-1][1]:.1f} MiB (growth after the compile cache filled: "
+        f"{rows[-1][1] - rows[1][1]:+.1f} MiB over {args.calls - 200} calls)"
+    )
+    print(
+        f"time per call: block 2 {1000 * rows[1][2]:.1f} ms, last block {1000 * rows[-1][2]:.1f} ms"
+    )
+    print(
+        f"repeated (shape, seed) runs that differed from their first run: {mismatches} "
+        f"of {args.calls - len(first)}"
+    )
 
 
 if __name__ == "__main__":

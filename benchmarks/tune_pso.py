@@ -14,14 +14,12 @@ import time
 
 import numpy as np
 
-from swarmcurves_jax import PSOParams, design_matrix, fit, make_knots
+from swarmcurves_jax import PSOParams, fit
+from swarmcurves_jax.datasets import random_bspline_points
 
 
-def random_curve_points(rng, n, k, closed, num_points=200, dim=2):
-    ctrl = rng.uniform(-1, 1, (n, dim))
-    t = make_knots(n, k, closed)
-    u = np.linspace(0, 1, num_points, endpoint=not closed)
-    return design_matrix(u, t, k, closed=closed) @ ctrl
+def random_curve_points(rng, n, k, closed):
+    return random_bspline_points(n, k, closed, seed=int(rng.integers(2**31)))[0]
 
 
 def main(argv=None):
@@ -35,25 +33,42 @@ def main(argv=None):
     grid = [
         (PSOParams(w, c, c, v, pat), fe, ini)
         for (w, c), v, pat, fe, ini in itertools.product(
-            [(0.7298, 1.49618), (0.6, 1.7)], [0.1], [50.0, 100.0, 200.0], [True],
+            [(0.7298, 1.49618), (0.6, 1.7)],
+            [0.1],
+            [50.0, 100.0, 200.0],
+            [True],
             ["uniform", "lsq"],
         )
     ]
-    print(f"{'inertia':>8} {'c1=c2':>7} {'v_max':>6} {'pat':>5} {'ends':>5} {'init':>7} | {'open med':>9} {'open max':>9} "
-          f"| {'closed med':>10} {'closed max':>10} | time")
+    print(
+        f"{'inertia':>8} {'c1=c2':>7} {'v_max':>6} {'pat':>5} {'ends':>5} {'init':>7} | "
+        f"{'open med':>9} {'open max':>9} | {'closed med':>10} {'closed max':>10} | time"
+    )
     for params, fix_ends, init in grid:
         t0 = time.perf_counter()
         errs = {"open": [], "closed": []}
         for kind, pts, n, closed in cases:
-            r = fit(pts, cps=n, degrees=3, closed=closed, iterations=args.iterations,
-                    params=params, seed=1, fix_ends=fix_ends, init=init)
+            r = fit(
+                pts,
+                cps=n,
+                degrees=3,
+                closed=closed,
+                iterations=args.iterations,
+                params=params,
+                seed=1,
+                fix_ends=fix_ends,
+                init=init,
+            )
             errs[kind].append(r.best.error)
         o, c = np.array(errs["open"]), np.array(errs["closed"])
-        print(f"{params.inertia:8.4f} {params.cognitive:7.4f} {params.v_max:6.2f} "
-              f"{params.patience:5.0f} "
-              f"{fix_ends!s:>5} {init:>7} | "
-              f"{np.median(o):9.2e} {o.max():9.2e} | {np.median(c):10.2e} {c.max():10.2e} | "
-              f"{time.perf_counter() - t0:.1f}s", flush=True)
+        print(
+            f"{params.inertia:8.4f} {params.cognitive:7.4f} {params.v_max:6.2f} "
+            f"{params.patience:5.0f} "
+            f"{fix_ends!s:>5} {init:>7} | "
+            f"{np.median(o):9.2e} {o.max():9.2e} | {np.median(c):10.2e} {c.max():10.2e} | "
+            f"{time.perf_counter() - t0:.1f}s",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

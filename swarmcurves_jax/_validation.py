@@ -39,9 +39,7 @@ def check_points(points) -> np.ndarray:
     ):
         if np.issubdtype(arr.dtype, np.complexfloating):
             raise ValueError("points must be real numbers, got a complex array")
-        raise ValueError(
-            f"points must be numbers of shape (N, 2) or (N, 3), got dtype {arr.dtype}"
-        )
+        raise ValueError(f"points must be numbers of shape (N, 2) or (N, 3), got dtype {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] not in (2, 3):
         hint = ""
         if arr.ndim == 2 and arr.shape[0] in (2, 3) and arr.shape[1] > 3:
@@ -106,7 +104,12 @@ def check_positive_int(value, name: str) -> int:
 def check_tol(tol) -> float | None:
     if tol is None:
         return None
-    if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not np.isfinite(tol) or tol < 0:
+    if (
+        isinstance(tol, bool)
+        or not isinstance(tol, numbers.Real)
+        or not np.isfinite(tol)
+        or tol < 0
+    ):
         raise ValueError(f"tol must be None or a finite number >= 0, got {tol!r}")
     return float(tol)
 
@@ -117,9 +120,7 @@ def check_weight_bounds(bounds) -> tuple[float, float]:
     except (TypeError, ValueError):
         raise ValueError(f"weight_bounds must be a pair (low, high), got {bounds!r}") from None
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(
-            f"weight_bounds must satisfy 0 < low < high (finite), got ({lo}, {hi})"
-        )
+        raise ValueError(f"weight_bounds must satisfy 0 < low < high (finite), got ({lo}, {hi})")
     return lo, hi
 
 
@@ -132,10 +133,14 @@ def check_params(params):
     for name in ("inertia", "cognitive", "social", "v_max"):
         value = np.asarray(getattr(params, name), dtype=float)
         if value.shape != () or not np.isfinite(value):
-            raise ValueError(f"params.{name} must be a finite number, got {getattr(params, name)!r}")
+            raise ValueError(
+                f"params.{name} must be a finite number, got {getattr(params, name)!r}"
+            )
     if not float(params.v_max) > 0:
         raise ValueError(f"params.v_max must be > 0, got {params.v_max!r}")
     patience = np.asarray(params.patience, dtype=float)
     if patience.shape != () or np.isnan(patience) or patience < 1:
-        raise ValueError(f"params.patience must be >= 1 (inf: never restart), got {params.patience!r}")
+        raise ValueError(
+            f"params.patience must be >= 1 (inf: never restart), got {params.patience!r}"
+        )
     return params

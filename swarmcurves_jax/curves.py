@@ -62,9 +62,7 @@ class Curve:
     def __post_init__(self) -> None:
         ctrl = np.array(self.control_points, dtype=np.float64)
         if ctrl.ndim != 2 or ctrl.shape[1] not in (2, 3):
-            raise ValueError(
-                f"control_points must have shape (n, 2) or (n, 3), got {ctrl.shape}"
-            )
+            raise ValueError(f"control_points must have shape (n, 2) or (n, 3), got {ctrl.shape}")
         check_degree_count(self.degree, len(ctrl))
         w = np.array(self.weights, dtype=np.float64).reshape(-1)
         if w.shape != (len(ctrl),) or not np.all(np.isfinite(w)) or np.any(w <= 0):

@@ -32,7 +32,11 @@ def analytic_points(name: str, num_points: int = 200) -> np.ndarray:
 
 
 def random_bspline_points(
-    n: int = 6, degree: int = 3, closed: bool = False, num_points: int = 200, dim: int = 2,
+    n: int = 6,
+    degree: int = 3,
+    closed: bool = False,
+    num_points: int = 200,
+    dim: int = 2,
     seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Points of a random B-spline (control points U[-1, 1]) at evenly spaced parameters.

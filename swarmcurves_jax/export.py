@@ -11,7 +11,6 @@ import io
 import json
 import os
 import tempfile
-from math import comb
 from pathlib import Path
 from typing import Iterable
 
@@ -125,18 +124,13 @@ def write_dxf(path, curves: Iterable[Curve], points: np.ndarray | None = None) -
         spline.dxf.flags = flags
     if points is not None:
         for p in np.asarray(points, dtype=float):
-            msp.add_point(tuple(p.tolist()) + ((0.0,) if len(p) == 2 else ()),
-                          dxfattribs={"layer": "data"})
+            msp.add_point(
+                tuple(p.tolist()) + ((0.0,) if len(p) == 2 else ()), dxfattribs={"layer": "data"}
+            )
     buf = io.StringIO()
     doc.write(buf)
     with atomic_write(path) as fh:
         fh.write(buf.getvalue())
-
-
-def _bezier_points(ctrl, w, s):
-    k = len(ctrl) - 1
-    b = np.stack([comb(k, i) * s**i * (1 - s) ** (k - i) for i in range(k + 1)], axis=1)
-    return (b @ (ctrl * w[:, None])) / (b @ w)[:, None]
 
 
 def svg_path(curve: Curve, samples: int = 400) -> tuple[str, str]:
@@ -144,7 +138,7 @@ def svg_path(curve: Curve, samples: int = 400) -> tuple[str, str]:
 
     Non-rational curves of degree <= 3 become exact line / quadratic / cubic Bézier
     commands (knot insertion).  Other curves become a polyline of ``samples`` points per
-    Bézier segment, and the note gives its largest deviation from the curve.
+    knot span, and the note gives its largest deviation from the curve.
     """
     if curve.dim != 2:
         raise ValueError("svg_path: SVG is 2D; this curve has 3 coordinates")
@@ -157,13 +151,11 @@ def svg_path(curve: Curve, samples: int = 400) -> tuple[str, str]:
             parts.append(cmd + " " + " ".join(fmt(p) for p in ctrl[1:]))
         note = "exact: Bezier segments of the B-spline"
     else:
-        s = np.linspace(0, 1, samples + 1)[1:]
-        pts = np.vstack([_bezier_points(ctrl, w, s) for ctrl, w in segs])
-        parts.append("L " + " ".join(fmt(p) for p in pts))
-        mids = np.vstack([_bezier_points(ctrl, w, s - 0.5 / samples) for ctrl, w in segs])
-        chord = np.vstack([segs[0][0][:1], pts])
-        mid_chord = 0.5 * (chord[:-1] + chord[1:])
-        dev = float(np.max(np.linalg.norm(mids - mid_chord, axis=1)))
+        u = np.linspace(0, 1, samples * len(segs) + 1)
+        pts = curve.evaluate(u)
+        parts.append("L " + " ".join(fmt(p) for p in pts[1:]))
+        mids = curve.evaluate(0.5 * (u[:-1] + u[1:]))
+        dev = float(np.max(np.linalg.norm(mids - 0.5 * (pts[:-1] + pts[1:]), axis=1)))
         why = "rational" if curve.rational else f"degree {curve.degree}"
         note = f"approximate ({why}): polyline, largest deviation about {dev:.3g}"
     if curve.closed:

@@ -67,24 +67,43 @@ class _Space(NamedTuple):
     dim: int
     rational: bool
 
+    @property
+    def num_ctrl(self) -> int:
+        return self.n_pad * self.dim
 
-def _decode(q: jax.Array, space: _Space):
-    ctrl = q[: space.n_pad * space.dim].reshape(space.n_pad, space.dim)
-    if not space.rational:
-        return ctrl, None
-    return ctrl, jnp.exp(q[space.n_pad * space.dim :])
+    @property
+    def size(self) -> int:
+        return self.num_ctrl + (self.n_pad if self.rational else 0)
+
+    def split(self, q):
+        """``(ctrl (n_pad, dim), log_weights (n_pad,) or None)`` of a position (JAX or NumPy)."""
+        ctrl = q[: self.num_ctrl].reshape(self.n_pad, self.dim)
+        return ctrl, (q[self.num_ctrl :] if self.rational else None)
 
 
 def _particle_fitness(q, basis, points, space):
-    ctrl, weights = _decode(q, space)
-    return mean_distance(ctrl, weights, basis, points)
+    ctrl, log_w = space.split(q)
+    return mean_distance(ctrl, None if log_w is None else jnp.exp(log_w), basis, points)
 
 
-@functools.partial(
-    jax.jit, static_argnames=("space", "num_particles", "num_steps", "seeded")
-)
-def _swarm_program(root_key, pairs, state, params, boxes, bases, seeds, points, tol, max_steps,
-                   *, space, num_particles, num_steps, seeded):
+@functools.partial(jax.jit, static_argnames=("space", "num_particles", "num_steps", "seeded"))
+def _swarm_program(
+    root_key,
+    pairs,
+    state,
+    params,
+    boxes,
+    bases,
+    seeds,
+    points,
+    tol,
+    max_steps,
+    *,
+    space,
+    num_particles,
+    num_steps,
+    seeded,
+):
     """Run ``num_steps`` PSO steps of every swarm; swarms whose ``step`` is 0 start fresh.
 
     A swarm's key is ``root_key`` folded with its degree and count, so its random stream
@@ -95,9 +114,7 @@ def _swarm_program(root_key, pairs, state, params, boxes, bases, seeds, points, 
         key = jax.random.fold_in(jax.random.fold_in(root_key, pair[0]), pair[1])
         init_key, run_key = jax.random.split(key)
         fresh = pso.init(init_key, box, num_particles, seed if seeded else None)
-        state = jax.tree_util.tree_map(
-            lambda a, b: jnp.where(state.step == 0, a, b), fresh, state
-        )
+        state = jax.tree_util.tree_map(lambda a, b: jnp.where(state.step == 0, a, b), fresh, state)
         fitness_fn = jax.vmap(lambda q: _particle_fitness(q, basis, points, space))
         return pso.run(run_key, state, params, box, fitness_fn, num_steps, tol, max_steps)
 
@@ -128,8 +145,7 @@ def _boxes(pairs, space: _Space, weight_bounds, ends, dtype) -> pso.Box:
     U[-1, 1] and stay inside log(weight_bounds).  ``ends`` ((2, D) or None) pins the first
     and last control points of open curves to the data's end points (lower = upper).
     """
-    num_ctrl = space.n_pad * space.dim
-    size = num_ctrl + (space.n_pad if space.rational else 0)
+    num_ctrl, size = space.num_ctrl, space.size
     init_lo, init_hi = -np.ones(size), np.ones(size)
     lower, upper = np.full(size, -np.inf), np.full(size, np.inf)
     if space.rational:
@@ -198,8 +214,7 @@ def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20) -> np.
 
 def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
     """One least-squares position per swarm, laid out like a particle."""
-    size = space.n_pad * space.dim + (space.n_pad if space.rational else 0)
-    out = np.zeros((len(pairs), size))
+    out = np.zeros((len(pairs), space.size))
     for i, (k, n) in enumerate(pairs):
         ctrl = least_squares_ctrl(norm_pts, n, k, closed, ends)
         out[i, : n * space.dim] = ctrl.ravel()
@@ -359,15 +374,18 @@ def fit(
     params = check_params(pso.default_params() if params is None else params)
     max_fitness_points = check_positive_int(max_fitness_points, "max_fitness_points")
     root_key = _root_key(seed)
+    seed_value = int(seed) if isinstance(seed, (int, np.integer)) else None  # for reports
 
     norm_pts, center, scale = normalise(pts)
     if np.ptp(pts, axis=0).max() == 0:
-        warnings.warn("points all coincide: every curve collapses onto that point", UserWarning,
-                      stacklevel=2)
+        warnings.warn(
+            "points all coincide: every curve collapses onto that point", UserWarning, stacklevel=2
+        )
     fit_pts = _canonical_order(norm_pts)
     if len(fit_pts) > max_fitness_points:
-        fit_pts = fit_pts[np.unique(np.linspace(0, len(fit_pts) - 1, max_fitness_points).round()
-                                    .astype(int))]
+        fit_pts = fit_pts[
+            np.unique(np.linspace(0, len(fit_pts) - 1, max_fitness_points).round().astype(int))
+        ]
     # The swarm's data, and the host's seed and ends, in the swarm's precision: the host
     # then works on exactly the numbers the device sees, so shifting or scaling the input
     # (which moves norm_pts by rounding only) cannot tip the seed's nearest-point choices.
@@ -376,11 +394,18 @@ def fit(
     space = _Space(n_pad=n_max, dim=dim, rational=rational)
     ends = fit_pts[[0, -1]] if (fix_ends and not closed) else None
     boxes = _boxes(pairs, space, weight_bounds, ends, dtype)
-    _check_memory(len(pairs), num_particles, boxes.mask.shape[1], len(fit_pts), num_samples,
-                  dim, jnp.dtype(dtype).itemsize)
+    _check_memory(
+        len(pairs),
+        num_particles,
+        space.size,
+        len(fit_pts),
+        num_samples,
+        dim,
+        jnp.dtype(dtype).itemsize,
+    )
     seeds = _seeds(pairs, space, fit_pts, closed, ends, dtype)
     bases = _stack_bases(pairs, closed, rational, num_samples, n_max, dtype)
-    state = _empty_state(len(pairs), num_particles, boxes.mask.shape[1], dtype)
+    state = _empty_state(len(pairs), num_particles, space.size, dtype)
     pair_ids = np.array(pairs, np.int32)
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in params))
     tol_arr = np.asarray(-1.0 if tol is None else tol, dtype)
@@ -408,8 +433,20 @@ def fit(
     try:
         while done < iterations:
             state, info = _swarm_program(
-                root_key, pair_ids, state, params, boxes, bases, seeds, data, tol_arr, max_steps,
-                space=space, num_particles=num_particles, num_steps=steps, seeded=init == "lsq",
+                root_key,
+                pair_ids,
+                state,
+                params,
+                boxes,
+                bases,
+                seeds,
+                data,
+                tol_arr,
+                max_steps,
+                space=space,
+                num_particles=num_particles,
+                num_steps=steps,
+                seeded=init == "lsq",
             )
             history.append(info.best_fitness)
             done += steps
@@ -436,8 +473,19 @@ def fit(
     final = jax.device_get((state.best_position, state.best_fitness, state.step))
     history = np.concatenate(jax.device_get(history), axis=1)[:, :iterations]
     solutions = [
-        _make_curve(k, n, final[0][i], float(final[1][i]), int(final[2][i]), space,
-                    closed, norm_pts, center, scale, seed)
+        _make_curve(
+            k,
+            n,
+            final[0][i],
+            float(final[1][i]),
+            int(final[2][i]),
+            space,
+            closed,
+            norm_pts,
+            center,
+            scale,
+            seed_value,
+        )
         for i, (k, n) in enumerate(pairs)
     ]
     return FitResult(
@@ -447,7 +495,7 @@ def fit(
         scale=scale,
         history=history.astype(np.float64),
         stop_reason=stop_reason,
-        seed=seed if isinstance(seed, int) else None,
+        seed=seed_value,
         wall_time=time.perf_counter() - start,
     )
 
@@ -514,13 +562,9 @@ def _best_per_degree(pairs, best) -> str:
 
 def _make_curve(k, n, q, fitness, steps, space, closed, norm_pts, center, scale, seed):
     """Host side: un-pad, measure by true projection, map back to the caller's frame."""
-    q = np.asarray(q, dtype=np.float64)
-    ctrl = q[: space.n_pad * space.dim].reshape(space.n_pad, space.dim)[:n]
-    if space.rational:
-        logw = q[space.n_pad * space.dim :][:n]
-        weights = np.exp(logw - logw.max())
-    else:
-        weights = np.ones(n)
+    ctrl, log_w = space.split(np.asarray(q, dtype=np.float64))
+    ctrl = ctrl[:n]
+    weights = np.ones(n) if log_w is None else np.exp(log_w[:n] - log_w[:n].max())
     t = make_knots(n, k, closed)
     dist, foot = project_points(norm_pts, ctrl, weights, t, k, closed)
     if _runs_backwards(foot, closed):  # same geometry, traversed like the input
@@ -542,7 +586,7 @@ def _make_curve(k, n, q, fitness, steps, space, closed, norm_pts, center, scale,
         info={
             "iterations": steps,
             "fitness": fitness,
-            "seed": seed if isinstance(seed, int) else None,
+            "seed": seed,
         },
     )
 

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .basis import design_matrix
-from .knots import make_knots
+from .knots import breakpoints, make_knots
 
 __all__ = [
     "SampleBasis",
@@ -67,7 +67,7 @@ def make_sample_basis(
     for nu in range(4):
         b = design_matrix(u, t, k, nu=nu, closed=closed)
         mats.append(np.pad(b, ((0, 0), (0, n_pad - n))))
-    breaks = np.unique(t[(t >= 0.0) & (t <= 1.0)])
+    breaks = breakpoints(t)
     span = np.clip(np.searchsorted(breaks, u, side="right") - 1, 0, len(breaks) - 2)
     lo, hi = breaks[span] - u, breaks[span + 1] - u
     if reach is not None:
@@ -104,9 +104,10 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
     branch where the curve moves fast and samples are sparse.  Written for XLA:CPU speed
     (measured on W1, ``benchmarks/bench_w1.py``): ``argmin`` is a variadic reduction the CPU
     backend does not vectorise (~40x slower), and a ``min`` over a broadcast (N, M) array
-    goes to a library kernel that materialises it.  So the index is packed into the low mantissa bits of the
-    (non-negative) squared distance and the minimum is an unrolled running ``minimum`` over
-    samples, which fuses into one loop (a ``lax.scan`` over blocks of 128 beyond that).
+    goes to a library kernel that materialises it.  So the index is packed into the low
+    mantissa bits of the (non-negative) squared distance and the minimum is an unrolled
+    running ``minimum`` over samples, which fuses into one loop (a ``lax.scan`` over blocks
+    of 128 beyond that).
     Ties break at a relative precision of ``2**(bits - 24)``; the caller refines anyway.
     """
     num, dim = samples.shape

@@ -8,7 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["clamped_uniform_knots", "periodic_uniform_knots", "make_knots", "check_degree_count"]
+__all__ = [
+    "clamped_uniform_knots",
+    "periodic_uniform_knots",
+    "make_knots",
+    "breakpoints",
+    "check_degree_count",
+]
 
 
 def check_degree_count(k: int, n: int) -> None:
@@ -51,3 +57,9 @@ def periodic_uniform_knots(n: int, k: int) -> np.ndarray:
 def make_knots(n: int, k: int, closed: bool) -> np.ndarray:
     """The knot vector SPEC §1 fixes for an open (clamped) or closed (periodic) curve."""
     return periodic_uniform_knots(n, k) if closed else clamped_uniform_knots(n, k)
+
+
+def breakpoints(t: np.ndarray) -> np.ndarray:
+    """The distinct knot values in the domain ``[0, 1]``: the ends of the knot spans."""
+    t = np.asarray(t, dtype=np.float64)
+    return np.unique(t[(t >= 0.0) & (t <= 1.0)])

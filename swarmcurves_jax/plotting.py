@@ -9,7 +9,13 @@ from .curves import Curve
 from .projection import project_points
 from .results import FitResult
 
-__all__ = ["residual_along_curve", "plot_curve", "plot_control_polygon", "plot_solution", "plot_error_vs_cps"]
+__all__ = [
+    "residual_along_curve",
+    "plot_curve",
+    "plot_control_polygon",
+    "plot_solution",
+    "plot_error_vs_cps",
+]
 
 
 def _axes(ax, projection=None):
@@ -24,8 +30,9 @@ def residual_along_curve(curve: Curve, points, u) -> np.ndarray:
     """Distance of the data to the curve, as a function of the curve parameter ``u``: each
     point's true distance, placed at its foot point and interpolated in between."""
     data = np.asarray(points, dtype=float)
-    dist, foot = project_points(data, curve.control_points, curve.weights, curve.knots,
-                                curve.degree, curve.closed)
+    dist, foot = project_points(
+        data, curve.control_points, curve.weights, curve.knots, curve.degree, curve.closed
+    )
     order = np.argsort(foot)
     return np.interp(u, foot[order], dist[order], period=1.0 if curve.closed else None)
 
@@ -88,8 +95,9 @@ def plot_error_vs_cps(result: FitResult, ax=None, metric: str = "error"):
     ax = _axes(ax)
     for k in sorted({c.degree for c in result.solutions}):
         cs = sorted((c for c in result.solutions if c.degree == k), key=lambda c: c.n_ctrl)
-        ax.semilogy([c.n_ctrl for c in cs], [getattr(c, metric) for c in cs], "o-",
-                    label=f"degree {k}")
+        ax.semilogy(
+            [c.n_ctrl for c in cs], [getattr(c, metric) for c in cs], "o-", label=f"degree {k}"
+        )
     ax.set_xlabel("control points")
     ax.set_ylabel(f"{metric} (normalised frame)")
     ax.grid(True, which="both", alpha=0.3)

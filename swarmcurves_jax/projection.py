@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .basis import design_matrix
+from .knots import breakpoints
 
 __all__ = ["curve_derivatives", "project_points", "dense_parameters"]
 
@@ -39,9 +40,9 @@ def curve_derivatives(u, ctrl, weights, t, k, closed, max_nu=2):
     return out
 
 
-def dense_parameters(t: np.ndarray, k: int, per_span: int) -> np.ndarray:
+def dense_parameters(t: np.ndarray, per_span: int) -> np.ndarray:
     """Sorted parameters in ``[0, 1]``: ``per_span`` equal steps in every non-empty span."""
-    breaks = np.unique(t[(t >= 0.0) & (t <= 1.0)])
+    breaks = breakpoints(t)
     steps = np.linspace(0.0, 1.0, per_span + 1)[:-1]
     u = (breaks[:-1, None] + steps[None, :] * np.diff(breaks)[:, None]).ravel()
     return np.append(u, 1.0)
@@ -84,8 +85,8 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
     u : ndarray, shape (N,)
     """
     points = np.asarray(points, dtype=np.float64)
-    num_spans = len(np.unique(t[(t >= 0.0) & (t <= 1.0)])) - 1
-    grid = dense_parameters(t, k, max(8, -(-min_samples // num_spans)))
+    num_spans = len(breakpoints(t)) - 1
+    grid = dense_parameters(t, max(8, -(-min_samples // num_spans)))
     samples = curve_derivatives(grid, ctrl, weights, t, k, closed, max_nu=0)[0]
     cand = _nearest_chords(points, samples)  # intervals [grid[i], grid[i+1]]
     lo, hi = grid[cand], grid[cand + 1]
@@ -108,4 +109,6 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
     c = curve_derivatives(cands.ravel(), ctrl, weights, t, k, closed, max_nu=0)[0]
     d = np.linalg.norm(c - pts, axis=1).reshape(len(points), -1)
     best = np.argmin(d, axis=1)
-    return d[np.arange(len(points)), best], cands.reshape(len(points), -1)[np.arange(len(points)), best]
+    return d[np.arange(len(points)), best], cands.reshape(len(points), -1)[
+        np.arange(len(points)), best
+    ]

@@ -156,16 +156,21 @@ def step(
     )
     v = jnp.clip(v, -params.v_max, params.v_max) * box.mask[None, :]
     q = jnp.clip(q + v, box.lower[None, :], box.upper[None, :])
-    moved = PSOState(q, v, pbest_pos, pbest_fit, gbest_pos, gbest_fit, best_pos, best_fit, stall,
-                     state.step + 1)
+    moved = PSOState(
+        q, v, pbest_pos, pbest_fit, gbest_pos, gbest_fit, best_pos, best_fit, stall, state.step + 1
+    )
 
     restart = stall >= params.patience
     # A restart discards this step's move, so its r_l draw is free to place the new swarm.
     fresh = _scale_to_init_box(r_l, box)
     inf = jnp.full_like(pbest_fit, jnp.inf)
     restarted = moved._replace(
-        position=fresh, velocity=jnp.zeros_like(v), pbest_position=fresh, pbest_fitness=inf,
-        gbest_fitness=inf[0], stall=jnp.zeros_like(stall),
+        position=fresh,
+        velocity=jnp.zeros_like(v),
+        pbest_position=fresh,
+        pbest_fitness=inf,
+        gbest_fitness=inf[0],
+        stall=jnp.zeros_like(stall),
     )
     new = jax.tree_util.tree_map(lambda a, b: jnp.where(restart, a, b), restarted, moved)
     active = (state.best_fitness > tol) & (state.step < max_steps)

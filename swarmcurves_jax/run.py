@@ -21,20 +21,37 @@ from pathlib import Path
 import numpy as np
 
 FIGURES = ("best", "sparsest", "all", "error_vs_cps")
-EXPORTS = ("json", "npz", "dxf", "svg")
+EXPORT_FILES = {
+    "json": "solutions.json",
+    "npz": "solutions.npz",
+    "dxf": "curves.dxf",
+    "svg": "curves.svg",
+}
+EXPORTS = tuple(EXPORT_FILES)
 
 # key: (default, kind, help).  Kinds are checked by ``check_config``.
 SCHEMA = {
-    "input": ("f4", "str", "point file (.csv/.txt/.xyz text with or without a header, or .npy; "
-              "one point per row, 2 or 3 columns) or a built-in dataset: f1..f5, random_open, "
-              "random_closed, or outline:NAME (a curve of the benchmark outlines in data_dir)"),
-    "data_dir": (None, "str?", "folder holding outlines/outlines.npz (default: $SWARMCURVES_DATA, "
-                 "else ../shared/data)"),
+    "input": (
+        "f4",
+        "str",
+        "point file (.csv/.txt/.xyz text with or without a header, or .npy; "
+        "one point per row, 2 or 3 columns) or a built-in dataset: f1..f5, random_open, "
+        "random_closed, or outline:NAME (a curve of the benchmark outlines in data_dir)",
+    ),
+    "data_dir": (
+        None,
+        "str?",
+        "folder holding outlines/outlines.npz (default: $SWARMCURVES_DATA, else ../shared/data)",
+    ),
     "closed": (None, "bool?", "closed curve (default: the dataset's own; false for files)"),
     "cps": ("4-10", "counts", "control-point counts: an int, a list, or a range 'A-B'"),
     "degrees": (3, "counts", "degrees: an int, a list, or a range 'A-B' (1 = polygon)"),
     "rational": (False, "bool", "optimise NURBS weights too"),
-    "fix_ends": (True, "bool", "pin an open curve's end control points to the first and last point"),
+    "fix_ends": (
+        True,
+        "bool",
+        "pin an open curve's end control points to the first and last point",
+    ),
     "init": ("lsq", ("lsq", "uniform"), "'lsq': one particle seeded by least squares; 'uniform'"),
     "particles": (64, "int>=1", "particles per swarm"),
     "iterations": (2000, "int>=1", "iteration limit (the paper: 2000)"),
@@ -43,11 +60,17 @@ SCHEMA = {
     "cognitive": (1.49618, "float", "PSO weight of the personal best (phi_l)"),
     "social": (1.49618, "float", "PSO weight of the swarm's best (phi_g)"),
     "v_max": (0.1, "float>0", "velocity clamp per coordinate (normalised frame)"),
-    "patience": (100, "int>=1?", "restart a swarm after this many steps without progress "
-                 "(null: never)"),
+    "patience": (
+        100,
+        "int>=1?",
+        "restart a swarm after this many steps without progress (null: never)",
+    ),
     "seed": (0, "int>=0", "random seed"),
-    "select_pct_diag": (0.35, "float>0", "tolerance for 'sparsest': mean error as % of the "
-                        "bounding-box diagonal"),
+    "select_pct_diag": (
+        0.35,
+        "float>0",
+        "tolerance for 'sparsest': mean error as % of the bounding-box diagonal",
+    ),
     "out": (None, "str?", "output folder (nothing is written without one)"),
     "figures": (["best", "error_vs_cps"], FIGURES, "PNG figures to write: " + ", ".join(FIGURES)),
     "exports": (list(EXPORTS), EXPORTS, "files to write: " + ", ".join(EXPORTS)),
@@ -65,8 +88,10 @@ def parse_counts(value, key: str) -> list[int]:
         raise bad
     if isinstance(value, int):
         return [value]
-    if isinstance(value, list) and value and all(
-        isinstance(v, int) and not isinstance(v, bool) for v in value
+    if (
+        isinstance(value, list)
+        and value
+        and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
     ):
         return list(value)
     if isinstance(value, str):
@@ -149,8 +174,10 @@ def read_points(path: Path) -> np.ndarray:
         except Exception as exc:
             raise ConfigError(f"input: cannot read '{path}' as .npy: {exc}") from None
         if arr.ndim != 2 or arr.shape[1] not in (2, 3) or not np.issubdtype(arr.dtype, np.number):
-            raise ConfigError(f"input: {path}: expected a numeric (N, 2) or (N, 3) array, got "
-                              f"{arr.dtype} {arr.shape}")
+            raise ConfigError(
+                f"input: {path}: expected a numeric (N, 2) or (N, 3) array, got "
+                f"{arr.dtype} {arr.shape}"
+            )
         bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
         if len(bad):
             raise ConfigError(f"input: {path}: row {bad[0]} holds NaN or inf")
@@ -171,11 +198,14 @@ def read_points(path: Path) -> np.ndarray:
                         continue
                     raise ConfigError(f"input: {path}:{lineno}: not a number in {text!r}") from None
                 if width not in (None, -1) and len(values) != width:
-                    raise ConfigError(f"input: {path}:{lineno}: {len(values)} columns, expected "
-                                      f"{width} like the rows before")
+                    raise ConfigError(
+                        f"input: {path}:{lineno}: {len(values)} columns, expected "
+                        f"{width} like the rows before"
+                    )
                 if len(values) not in (2, 3):
-                    raise ConfigError(f"input: {path}:{lineno}: {len(values)} columns, expected 2 "
-                                      "or 3 (x y [z])")
+                    raise ConfigError(
+                        f"input: {path}:{lineno}: {len(values)} columns, expected 2 or 3 (x y [z])"
+                    )
                 if not np.all(np.isfinite(values)):
                     raise ConfigError(f"input: {path}:{lineno}: NaN or inf in {text!r}")
                 width = len(values)
@@ -203,8 +233,11 @@ def load_input(cfg) -> tuple[np.ndarray, bool, str]:
             raise ConfigError(f"data_dir: no outlines/outlines.npz under '{root}'")
         with np.load(path) as npz:
             if f"{curve}_points" not in npz:
-                names = sorted(k[: -len("_points")] for k in npz if k.endswith("_points")
-                               and not k.endswith("_random_points"))
+                names = sorted(
+                    k[: -len("_points")]
+                    for k in npz
+                    if k.endswith("_points") and not k.endswith("_random_points")
+                )
                 raise ConfigError(f"input: no outline '{curve}' in {path}; have {', '.join(names)}")
             return npz[f"{curve}_points"], bool(npz[f"{curve}_closed"]), name
     return read_points(Path(name)), False, name
@@ -215,9 +248,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m swarmcurves_jax.run",
         description="Fit B-spline / NURBS curves to ordered points with particle swarms. "
         "A YAML config holds any of the keys below; command-line options override it.",
-        epilog="config keys (YAML):\n" + "\n".join(
-            f"  {k:15s} {h} [default: {d!r}]" for k, (d, _, h) in SCHEMA.items()
-        ) + "\n\nexit codes: 0 done (also after Ctrl-C, with the best so far), 2 bad config or input",
+        epilog="config keys (YAML):\n"
+        + "\n".join(f"  {k:15s} {h} [default: {d!r}]" for k, (d, _, h) in SCHEMA.items())
+        + "\n\nexit codes: 0 done (also after Ctrl-C, with the best so far), 2 bad config or input",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument("config", nargs="?", help="YAML config file (default: the built-in example)")
@@ -251,22 +284,33 @@ def load_config(args) -> dict:
             raise ConfigError(f"config: '{path}' is not valid YAML: {first}") from None
         raw = {} if raw is None else raw
         if not isinstance(raw, dict):
-            raise ConfigError(f"config: '{path}' must hold a mapping of keys, got {type(raw).__name__}")
-    for key in ("input", "cps", "degrees", "closed", "rational", "iterations", "particles", "tol",
-                "seed", "out"):
+            raise ConfigError(
+                f"config: '{path}' must hold a mapping of keys, got {type(raw).__name__}"
+            )
+    for key in (
+        "input",
+        "cps",
+        "degrees",
+        "closed",
+        "rational",
+        "iterations",
+        "particles",
+        "tol",
+        "seed",
+        "out",
+    ):
         value = getattr(args, key)
         if value is not None:
             raw[key] = value
     return check_config(raw)
 
 
-def planned_files(cfg, result_pairs) -> list[str]:
-    names = {"json": "solutions.json", "npz": "solutions.npz", "dxf": "curves.dxf",
-             "svg": "curves.svg"}
-    files = [names[e] for e in cfg["exports"]]
+def planned_files(cfg, pairs) -> list[str]:
+    """Every file the run may write, to refuse a clash before any work starts."""
+    files = [EXPORT_FILES[e] for e in cfg["exports"]]
     for fig in cfg["figures"]:
         if fig == "all":
-            files += [f"solution_d{k}_n{n}.png" for k, n in result_pairs]
+            files += [f"solution_d{k}_n{n}.png" for k, n in pairs]
         else:
             files.append(f"{fig}.png")
     return files
@@ -281,32 +325,37 @@ def format_table(result, sparsest) -> str:
     return "\n".join(line + mark for line, mark in zip(lines, marks))
 
 
-def write_outputs(cfg, result, points, out: Path, pairs) -> list[Path]:
+def write_outputs(cfg, result, points, out: Path) -> list[Path]:
     from . import __version__
     from .export import write_dxf, write_json, write_npz, write_svg
 
     import jax
 
     out.mkdir(parents=True, exist_ok=True)
-    written = []
     curves = result.solutions
-    if "json" in cfg["exports"]:
-        write_json(out / "solutions.json", curves, swarmcurves_jax=__version__, jax=jax.__version__,
-                   config=cfg, seed=result.seed, stop_reason=result.stop_reason,
-                   wall_time=result.wall_time, num_points=len(points))
-        written.append(out / "solutions.json")
-    if "npz" in cfg["exports"]:
-        write_npz(out / "solutions.npz", curves, points)
-        written.append(out / "solutions.npz")
-    if "dxf" in cfg["exports"]:
-        write_dxf(out / "curves.dxf", curves, points)
-        written.append(out / "curves.dxf")
-    if "svg" in cfg["exports"]:
-        if points.shape[1] == 2:
-            write_svg(out / "curves.svg", curves, points)
-            written.append(out / "curves.svg")
-        else:
+    writers = {
+        "json": lambda path: write_json(
+            path,
+            curves,
+            swarmcurves_jax=__version__,
+            jax=jax.__version__,
+            config=cfg,
+            seed=result.seed,
+            stop_reason=result.stop_reason,
+            wall_time=result.wall_time,
+            num_points=len(points),
+        ),
+        "npz": lambda path: write_npz(path, curves, points),
+        "dxf": lambda path: write_dxf(path, curves, points),
+        "svg": lambda path: write_svg(path, curves, points),
+    }
+    written = []
+    for name in cfg["exports"]:
+        if name == "svg" and points.shape[1] != 2:
             print("note: no SVG for 3D points (SVG is 2D)")
+            continue
+        writers[name](out / EXPORT_FILES[name])
+        written.append(out / EXPORT_FILES[name])
     if cfg["figures"]:
         written += _write_figures(cfg, result, points, out)
     return written
@@ -334,7 +383,9 @@ def _write_figures(cfg, result, points, out: Path) -> list[Path]:
             written.append(save(plot_solution(chosen[fig_name], points), f"{fig_name}.png"))
         elif fig_name == "all":
             for c in result.solutions:
-                written.append(save(plot_solution(c, points), f"solution_d{c.degree}_n{c.n_ctrl}.png"))
+                written.append(
+                    save(plot_solution(c, points), f"solution_d{c.degree}_n{c.n_ctrl}.png")
+                )
         elif fig_name == "error_vs_cps":
             fig = plt.figure()
             plot_error_vs_cps(result, ax=fig.add_subplot())
@@ -358,18 +409,36 @@ def main(argv=None) -> int:
         if out is not None and not args.force:
             clash = [f for f in planned_files(cfg, pairs) if (out / f).exists()]
             if clash:
-                raise ConfigError(f"out: '{out}' already holds {', '.join(clash[:3])} from an earlier "
-                                  "run; pass --force to replace, or choose another folder")
+                raise ConfigError(
+                    f"out: '{out}' already holds {', '.join(clash[:3])} from an earlier "
+                    "run; pass --force to replace, or choose another folder"
+                )
         from . import PSOParams, fit
 
-        params = PSOParams(cfg["inertia"], cfg["cognitive"], cfg["social"], cfg["v_max"],
-                           float("inf") if cfg["patience"] is None else float(cfg["patience"]))
+        params = PSOParams(
+            cfg["inertia"],
+            cfg["cognitive"],
+            cfg["social"],
+            cfg["v_max"],
+            float("inf") if cfg["patience"] is None else float(cfg["patience"]),
+        )
         previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
         try:
-            result = fit(points, cps=cfg["cps"], degrees=cfg["degrees"], closed=closed,
-                         rational=cfg["rational"], fix_ends=cfg["fix_ends"], init=cfg["init"],
-                         particles=cfg["particles"], iterations=cfg["iterations"], tol=cfg["tol"],
-                         seed=cfg["seed"], params=params, progress=not args.quiet)
+            result = fit(
+                points,
+                cps=cfg["cps"],
+                degrees=cfg["degrees"],
+                closed=closed,
+                rational=cfg["rational"],
+                fix_ends=cfg["fix_ends"],
+                init=cfg["init"],
+                particles=cfg["particles"],
+                iterations=cfg["iterations"],
+                tol=cfg["tol"],
+                seed=cfg["seed"],
+                params=params,
+                progress=not args.quiet,
+            )
         finally:
             signal.signal(signal.SIGTERM, previous)
     except ConfigError as exc:
@@ -381,20 +450,26 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("interrupted before the first iterations finished; nothing written", file=sys.stderr)
         return 130
-    why = {"iterations": f"the iteration limit ({cfg['iterations']})",
-           "tol": f"every swarm reaching tol = {cfg['tol']}",
-           "interrupted": "an interrupt (best solutions so far)"}[result.stop_reason]
-    print(f"{len(result.points)} points from {label}, {'closed' if closed else 'open'}; "
-          f"stopped on {why} after {result.wall_time:.1f} s")
+    why = {
+        "iterations": f"the iteration limit ({cfg['iterations']})",
+        "tol": f"every swarm reaching tol = {cfg['tol']}",
+        "interrupted": "an interrupt (best solutions so far)",
+    }[result.stop_reason]
+    print(
+        f"{len(result.points)} points from {label}, {'closed' if closed else 'open'}; "
+        f"stopped on {why} after {result.wall_time:.1f} s"
+    )
     sparsest = result.sparsest(cfg["select_pct_diag"])
     print(format_table(result, sparsest))
     best = result.best
-    print(f"best: degree {best.degree}, {best.n_ctrl} control points, mean error {best.error:.3e} "
-          f"({best.error_pct_diag:.4f} % of the bounding-box diagonal)")
+    print(
+        f"best: degree {best.degree}, {best.n_ctrl} control points, mean error {best.error:.3e} "
+        f"({best.error_pct_diag:.4f} % of the bounding-box diagonal)"
+    )
     if sparsest is None:
         print(f"sparsest within {cfg['select_pct_diag']} % of the diagonal: none")
     if out is not None:
-        for path in write_outputs(cfg, result, np.asarray(result.points), out, pairs):
+        for path in write_outputs(cfg, result, np.asarray(result.points), out):
             print(f"wrote {path}")
     return 0
 

@@ -27,7 +27,9 @@ params = st.lists(st.floats(0, 1), min_size=1, max_size=20)
 
 
 def test_knot_vectors():
-    np.testing.assert_array_equal(clamped_uniform_knots(6, 3), [0, 0, 0, 0, 1 / 3, 2 / 3, 1, 1, 1, 1])
+    np.testing.assert_array_equal(
+        clamped_uniform_knots(6, 3), [0, 0, 0, 0, 1 / 3, 2 / 3, 1, 1, 1, 1]
+    )
     np.testing.assert_allclose(periodic_uniform_knots(4, 2), (np.arange(9) - 2) / 4)
     with pytest.raises(ValueError, match="control-point count must be an integer >= degree"):
         clamped_uniform_knots(3, 3)

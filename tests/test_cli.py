@@ -19,13 +19,24 @@ from swarmcurves_jax.run import ConfigError, check_config, main
 
 
 def run(*args, cwd=None, timeout=300):
-    return subprocess.run([sys.executable, "-m", "swarmcurves_jax.run", *args],
-                          capture_output=True, text=True, cwd=cwd, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "swarmcurves_jax.run", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=timeout,
+    )
 
 
-@pytest.mark.parametrize("dim,closed,rational,suffix", [
-    (2, False, False, ".csv"), (2, True, True, ".txt"), (3, False, True, ".npy"), (3, True, False, ".xyz"),
-])
+@pytest.mark.parametrize(
+    "dim,closed,rational,suffix",
+    [
+        (2, False, False, ".csv"),
+        (2, True, True, ".txt"),
+        (3, False, True, ".npy"),
+        (3, True, False, ".xyz"),
+    ],
+)
 def test_end_to_end_every_output_reads_back(tmp_path, dim, closed, rational, suffix):
     pts, _ = random_bspline_points(6, 3, closed, num_points=90, dim=dim, seed=4)
     pts = pts * 30 + 7
@@ -33,11 +44,23 @@ def test_end_to_end_every_output_reads_back(tmp_path, dim, closed, rational, suf
     if suffix == ".npy":
         np.save(src, pts)
     else:
-        np.savetxt(src, pts, delimiter="," if suffix == ".csv" else " ",
-                   header="x,y" if suffix == ".csv" else "", comments="")
-    cfg = {"input": str(src), "closed": closed, "rational": rational, "cps": "5-6",
-           "degrees": [2, 3], "iterations": 60, "out": str(tmp_path / "out"),
-           "figures": ["best", "sparsest", "error_vs_cps"]}
+        np.savetxt(
+            src,
+            pts,
+            delimiter="," if suffix == ".csv" else " ",
+            header="x,y" if suffix == ".csv" else "",
+            comments="",
+        )
+    cfg = {
+        "input": str(src),
+        "closed": closed,
+        "rational": rational,
+        "cps": "5-6",
+        "degrees": [2, 3],
+        "iterations": 60,
+        "out": str(tmp_path / "out"),
+        "figures": ["best", "sparsest", "error_vs_cps"],
+    }
     (tmp_path / "job.yaml").write_text(yaml.safe_dump(cfg))
     proc = run(str(tmp_path / "job.yaml"), "--quiet")
     assert proc.returncode == 0, proc.stderr
@@ -131,7 +154,10 @@ def test_bad_configs_and_files_exit_2_with_one_clear_line(tmp_path):
         (["--cps", "3", "--degrees", "3"], "3 control points are too few"),
         ([str(tmp_path / "bad.yaml")], "is not valid YAML"),
         ([str(tmp_path / "list.yaml")], "must hold a mapping of keys"),
-        ([str(tmp_path / "typo.yaml")], "unknown config key 'iteratons' (did you mean 'iterations'?)"),
+        (
+            [str(tmp_path / "typo.yaml")],
+            "unknown config key 'iteratons' (did you mean 'iterations'?)",
+        ),
         ([str(tmp_path / "none.yaml")], "config: no such file"),
     ]
     for args, message in cases:
@@ -145,8 +171,9 @@ def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
     (tmp_path / "outlines").mkdir()
     ring = np.c_[np.cos(np.linspace(0, 6, 60)), np.sin(np.linspace(0, 6, 60))]
     np.savez(tmp_path / "outlines" / "outlines.npz", ring_points=ring, ring_closed=np.array(True))
-    (tmp_path / "job.yaml").write_text(f"input: outline:ring\ndata_dir: {tmp_path}\ncps: 5\n"
-                                       "iterations: 20\n")
+    (tmp_path / "job.yaml").write_text(
+        f"input: outline:ring\ndata_dir: {tmp_path}\ncps: 5\niterations: 20\n"
+    )
     assert main([str(tmp_path / "job.yaml"), "--quiet"]) == 0
     assert "60 points from outline:ring, closed" in capsys.readouterr().out
     (tmp_path / "job.yaml").write_text(f"input: outline:square\ndata_dir: {tmp_path}\n")
@@ -158,9 +185,19 @@ def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "swarmcurves_jax.run", "--iterations", "200000", "--quiet",
-         "--out", str(tmp_path / "o")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "swarmcurves_jax.run",
+            "--iterations",
+            "200000",
+            "--quiet",
+            "--out",
+            str(tmp_path / "o"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     time.sleep(12)  # compile and run a few chunks
     proc.send_signal(sig)

@@ -37,7 +37,9 @@ def compiles_during(fn):
 
 def test_mixed_degrees_and_counts_compile_one_program_once():
     u = np.linspace(0, 1, 120)
-    pts = design_matrix(u, make_knots(6, 3, False), 3) @ np.random.default_rng(0).uniform(-1, 1, (6, 2))
+    pts = design_matrix(u, make_knots(6, 3, False), 3) @ np.random.default_rng(0).uniform(
+        -1, 1, (6, 2)
+    )
     before = _swarm_program._cache_size()
     kwargs = dict(cps=range(4, 9), degrees=(1, 2, 3), iterations=40, chunk_size=20)
     first = compiles_during(lambda: fit(pts, **kwargs))

@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 
 from swarmcurves_jax import Curve, make_knots
-from swarmcurves_jax.export import read_solutions, svg_path, write_dxf, write_json, write_npz, write_svg
+from swarmcurves_jax.export import (
+    read_solutions,
+    svg_path,
+    write_dxf,
+    write_json,
+    write_npz,
+    write_svg,
+)
 
 U = np.linspace(0, 1, 1000)
 
@@ -18,8 +25,14 @@ def curves(dim=2):
     rng = np.random.default_rng(1)
     return [
         Curve(3, rng.uniform(-1, 1, (6, dim)), np.ones(6), make_knots(6, 3, False)),
-        Curve(2, rng.uniform(-1, 1, (5, dim)), rng.uniform(0.5, 2, 5), make_knots(5, 2, True),
-              closed=True, rational=True),
+        Curve(
+            2,
+            rng.uniform(-1, 1, (5, dim)),
+            rng.uniform(0.5, 2, 5),
+            make_knots(5, 2, True),
+            closed=True,
+            rational=True,
+        ),
         Curve(5, rng.uniform(-1, 1, (7, dim)), np.ones(7), make_knots(7, 5, False)),
     ]
 

@@ -82,8 +82,14 @@ def test_chunk_size_does_not_change_results():
 def test_tol_stops_early_and_says_so():
     pts = spline_points(9, 4, False)
     calls = []
-    result = fit(pts, cps=4, iterations=2000, tol=1e-3, chunk_size=100,
-                 callback=lambda i, best: calls.append((i, best.copy())))
+    result = fit(
+        pts,
+        cps=4,
+        iterations=2000,
+        tol=1e-3,
+        chunk_size=100,
+        callback=lambda i, best: calls.append((i, best.copy())),
+    )
     assert result.stop_reason == "tol"
     assert result[3, 4].info["iterations"] < 2000 and len(calls) < 20
     assert calls[-1][1][0] <= 1e-3
@@ -103,8 +109,9 @@ def test_result_objects_and_round_trip(tmp_path):
     curve = result[3, 6]
     assert curve.closed and curve.rational and curve.weights.max() == 1.0
     assert curve.error <= curve.rms_error <= curve.max_error
-    np.testing.assert_allclose(curve.error_pct_diag,
-                               100 * curve.error / np.linalg.norm(np.ptp(result.normalised(pts), 0)))
+    np.testing.assert_allclose(
+        curve.error_pct_diag, 100 * curve.error / np.linalg.norm(np.ptp(result.normalised(pts), 0))
+    )
     path = tmp_path / "c.json"
     path.write_text(json.dumps(curve.to_dict()))
     back = Curve.from_dict(json.loads(path.read_text()))
@@ -127,8 +134,9 @@ def test_curves_come_back_in_the_callers_frame():
     pts = spline_points(12, 5, False)
     big = fit(pts * 1000 + 5e4, cps=5, iterations=200)
     small = fit(pts, cps=5, iterations=200)
-    np.testing.assert_allclose(big[3, 5].control_points, small[3, 5].control_points * 1000 + 5e4,
-                               rtol=1e-4, atol=1e-1)
+    np.testing.assert_allclose(
+        big[3, 5].control_points, small[3, 5].control_points * 1000 + 5e4, rtol=1e-4, atol=1e-1
+    )
     assert big[3, 5].error == pytest.approx(small[3, 5].error, rel=1e-3, abs=1e-6)
 
 
@@ -169,8 +177,13 @@ def test_unknown_keyword_is_a_type_error():
 def test_callback_without_tol_reports_every_chunk_in_order():
     pts = spline_points(14, 5, False)
     calls = []
-    result = fit(pts, cps=[4, 5], iterations=250, chunk_size=100,
-                 callback=lambda i, best: calls.append((i, np.array(best))))
+    result = fit(
+        pts,
+        cps=[4, 5],
+        iterations=250,
+        chunk_size=100,
+        callback=lambda i, best: calls.append((i, np.array(best))),
+    )
     assert [i for i, _ in calls] == [100, 200, 250]
     np.testing.assert_allclose(calls[-1][1], result.history[:, -1], rtol=1e-6)
     assert np.all(calls[1][1] <= calls[0][1])  # the best ever never worsens

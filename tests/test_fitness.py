@@ -41,8 +41,11 @@ def test_fitness_near_exact_on_and_off_the_curve(closed, n):
     basis = as_jax(make_sample_basis(n, 3, closed, 64))
     for eps, tol in [(0.0, 2e-4), (1e-2, 0.2), (1e-1, 0.05)]:
         trial = cn + eps * rng.standard_normal(cn.shape)
-        est = np.asarray(point_distances(jnp.asarray(trial, jnp.float32), None, basis,
-                                         jnp.asarray(xn, jnp.float32)))
+        est = np.asarray(
+            point_distances(
+                jnp.asarray(trial, jnp.float32), None, basis, jnp.asarray(xn, jnp.float32)
+            )
+        )
         exact, _ = project_points(xn, trial, np.ones(n), t, 3, closed)
         # the estimate never undercuts the true distance by more than float32 noise
         assert np.all(est >= exact - 1e-5)

@@ -9,16 +9,27 @@ from swarmcurves_jax import Curve, make_knots
 from swarmcurves_jax.interop import bezier_segments
 
 U = np.linspace(0, 1, 1000)
-CASES = [(k, closed, rational, dim) for k in (1, 2, 3, 5) for closed in (False, True)
-         for rational in (False, True) for dim in (2, 3)]
+CASES = [
+    (k, closed, rational, dim)
+    for k in (1, 2, 3, 5)
+    for closed in (False, True)
+    for rational in (False, True)
+    for dim in (2, 3)
+]
 
 
 def random_curve(k, closed, rational, dim, seed=0):
     rng = np.random.default_rng(seed + 10 * k + 2 * closed + rational)
     n = k + 3
     w = rng.uniform(0.3, 2.0, n) if rational else np.ones(n)
-    return Curve(k, rng.uniform(-5, 5, (n, dim)), w, make_knots(n, k, closed), closed=closed,
-                 rational=rational)
+    return Curve(
+        k,
+        rng.uniform(-5, 5, (n, dim)),
+        w,
+        make_knots(n, k, closed),
+        closed=closed,
+        rational=rational,
+    )
 
 
 @pytest.mark.parametrize("k,closed,rational,dim", CASES)
@@ -31,8 +42,9 @@ def test_clamped_form_and_geomdl_are_the_same_curve(k, closed, rational, dim):
     np.testing.assert_allclose(np.array(g.evaluate_list(list(U))), curve.evaluate(U), atol=1e-6)
 
 
-@pytest.mark.parametrize("k,closed,dim", [(k, c, d) for k in (1, 2, 3, 5) for c in (False, True)
-                                          for d in (2, 3)])
+@pytest.mark.parametrize(
+    "k,closed,dim", [(k, c, d) for k in (1, 2, 3, 5) for c in (False, True) for d in (2, 3)]
+)
 def test_scipy_round_trip(k, closed, dim):
     curve = random_curve(k, closed, False, dim)
     spl = curve.to_scipy()
@@ -53,8 +65,10 @@ def test_scipy_refuses_what_it_cannot_hold():
         Curve.from_scipy(BSpline(t, np.zeros((5, 2)), 3))
 
 
-@pytest.mark.parametrize("k,closed,rational", [(k, c, r) for k in (1, 2, 3, 5)
-                                               for c in (False, True) for r in (False, True)])
+@pytest.mark.parametrize(
+    "k,closed,rational",
+    [(k, c, r) for k in (1, 2, 3, 5) for c in (False, True) for r in (False, True)],
+)
 def test_bezier_segments_reproduce_the_curve(k, closed, rational):
     curve = random_curve(k, closed, rational, 2)
     segs = bezier_segments(curve)

@@ -9,7 +9,10 @@ from swarmcurves_jax import pso
 
 def box(dim, lo=-5.0, hi=5.0):
     return pso.Box(
-        jnp.full(dim, lo), jnp.full(dim, hi), jnp.full(dim, -jnp.inf), jnp.full(dim, jnp.inf),
+        jnp.full(dim, lo),
+        jnp.full(dim, hi),
+        jnp.full(dim, -jnp.inf),
+        jnp.full(dim, jnp.inf),
         jnp.ones(dim),
     )
 

@@ -38,8 +38,11 @@ BAD_INPUT = [
     ("degree 0", dict(degrees=0), "degrees must be >= 1"),
     ("negative degree", dict(degrees=[-1, 2]), "degrees must be >= 1"),
     ("degree >= cps", dict(cps=3, degrees=3), "3 control points are too few for an open curve"),
-    ("closed, degree >= cps", dict(cps=[3, 5], closed=True),
-     "3 control points are too few for a closed curve of degree 3"),
+    (
+        "closed, degree >= cps",
+        dict(cps=[3, 5], closed=True),
+        "3 control points are too few for a closed curve of degree 3",
+    ),
     ("non-integer cps", dict(cps=4.5), "cps must be an int or an iterable of ints"),
     ("float in cps", dict(cps=[4, 5.0]), "cps must hold integers"),
     ("string cps", dict(cps="5"), "cps must be an int or an iterable of ints"),
@@ -56,7 +59,11 @@ BAD_INPUT = [
     ("weight bounds inverted", dict(weight_bounds=(10, 0.1)), "0 < low < high"),
     ("weight bound zero", dict(weight_bounds=(0, 1)), "0 < low < high"),
     ("weight bounds not a pair", dict(weight_bounds=5), "weight_bounds must be a pair"),
-    ("unknown keyword", dict(particle=8), "unexpected keyword argument 'particle' (did you mean 'particles'?)"),
+    (
+        "unknown keyword",
+        dict(particle=8),
+        "unexpected keyword argument 'particle' (did you mean 'particles'?)",
+    ),
     ("closed not a bool", dict(closed="yes"), "closed must be True or False"),
     ("seed not an int", dict(seed="abc"), "seed must be an int or a JAX PRNG key"),
     ("v_max 0", dict(params=P._replace(v_max=0.0)), "params.v_max must be > 0"),
@@ -68,7 +75,11 @@ BAD_INPUT = [
     ("integer dtype", dict(dtype=np.int32), "dtype must be float32 or float64"),
     ("chunk_size 0", dict(chunk_size=0), "chunk_size must be an integer >= 1"),
     ("num_samples 0", dict(num_samples=0), "num_samples must be an integer >= 1"),
-    ("max_fitness_points 0", dict(max_fitness_points=0), "max_fitness_points must be an integer >= 1"),
+    (
+        "max_fitness_points 0",
+        dict(max_fitness_points=0),
+        "max_fitness_points must be an integer >= 1",
+    ),
     ("too much memory", dict(particles=10**8), "fit would need about"),
 ]
 
@@ -109,18 +120,22 @@ def test_huge_and_tiny_coordinates_give_the_unit_scale_fit():
         scaled = fit(GOOD * factor + shift, cps=5, iterations=300)
         _sane(scaled)
         assert scaled.best.error == pytest.approx(base.best.error, rel=1e-6)
-        np.testing.assert_allclose(scaled.best.control_points,
-                                   base.best.control_points * factor + shift, rtol=1e-6)
+        np.testing.assert_allclose(
+            scaled.best.control_points, base.best.control_points * factor + shift, rtol=1e-6
+        )
 
 
 # "Sane": finite, and within 10 % of the data's extent (the normalised frame spans 2).
-@pytest.mark.parametrize("name,points,kwargs,max_error", [
-    ("collinear", np.c_[np.linspace(0, 5, 80), 2 * np.linspace(0, 5, 80) + 1], {}, 1e-3),
-    ("consecutive duplicates", np.repeat(GOOD, 2, axis=0), {}, 0.2),
-    ("three points", GOOD[[0, 20, 39]], dict(cps=3, degrees=(1, 2)), 1e-6),
-    ("closed outline fitted open", random_bspline_points(6, 3, True, 80, seed=3)[0], {}, 0.2),
-    ("open curve fitted closed", GOOD, dict(closed=True), 0.2),
-])
+@pytest.mark.parametrize(
+    "name,points,kwargs,max_error",
+    [
+        ("collinear", np.c_[np.linspace(0, 5, 80), 2 * np.linspace(0, 5, 80) + 1], {}, 1e-3),
+        ("consecutive duplicates", np.repeat(GOOD, 2, axis=0), {}, 0.2),
+        ("three points", GOOD[[0, 20, 39]], dict(cps=3, degrees=(1, 2)), 1e-6),
+        ("closed outline fitted open", random_bspline_points(6, 3, True, 80, seed=3)[0], {}, 0.2),
+        ("open curve fitted closed", GOOD, dict(closed=True), 0.2),
+    ],
+)
 def test_hard_but_legal_input_gets_a_sane_answer(name, points, kwargs, max_error):
     args = dict(cps=5, iterations=300)
     args.update(kwargs)
@@ -195,6 +210,10 @@ def test_invariants_translation_scaling_seed_and_no_recompile(pts, rel_shift, fa
     for a, b, c in zip(base, moved, again):
         np.testing.assert_array_equal(a.control_points, c.control_points)  # same seed
         scale = np.ptp(pts * factor, axis=0).max()
-        np.testing.assert_allclose(b.control_points, a.control_points * factor + shift,
-                                   rtol=1e-5, atol=1e-5 * scale + 1e-9 * abs(shift))
+        np.testing.assert_allclose(
+            b.control_points,
+            a.control_points * factor + shift,
+            rtol=1e-5,
+            atol=1e-5 * scale + 1e-9 * abs(shift),
+        )
         assert b.error == pytest.approx(a.error, rel=1e-4, abs=1e-7)
