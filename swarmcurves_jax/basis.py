@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["design_matrix", "find_span"]
+__all__ = ["design_matrix", "find_span", "basis_functions"]
 
 
 def find_span(u: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
@@ -23,28 +23,32 @@ def find_span(u: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
     return np.clip(s, k, num_basis - 1)
 
 
-def _safe_inv(d: np.ndarray) -> np.ndarray:
-    out = np.zeros_like(d)
-    np.divide(1.0, d, out=out, where=d > 0)
-    return out
+def _safe_inv(d, xp=np):
+    """``1 / d`` where ``d > 0``, else 0 (the recursion's ``0/0 := 0``); gradient-safe."""
+    ok = d > 0
+    return xp.where(ok, 1.0 / xp.where(ok, d, 1.0), 0.0)
 
 
-def _basis(u: np.ndarray, t: np.ndarray, p: int, nu: int, span: np.ndarray) -> np.ndarray:
-    """``nu``-th derivative of all degree-``p`` basis functions on ``t``: (len(u), len(t)-p-1)."""
-    m = len(t)
+def basis_functions(u, t, p: int, nu: int, span, xp=np):
+    """``nu``-th derivative of all degree-``p`` basis functions on ``t``: (len(u), len(t)-p-1).
+
+    ``span[i]`` is the knot index ``s`` with ``t[s] <= u[i] < t[s+1]``.  Written against an
+    array module ``xp`` (NumPy, or ``jax.numpy`` where the knots themselves are optimised
+    and must carry gradients).
+    """
+    m = t.shape[0]
     if nu > p:
-        return np.zeros((len(u), m - p - 1))
+        return xp.zeros((u.shape[0], m - p - 1), dtype=u.dtype)
     if nu > 0:
-        lower = _basis(u, t, p - 1, nu - 1, span)
-        a = p * _safe_inv(t[p : m - 1] - t[: m - 1 - p])
-        b = p * _safe_inv(t[p + 1 :] - t[1 : m - p])
+        lower = basis_functions(u, t, p - 1, nu - 1, span, xp)
+        a = p * _safe_inv(t[p : m - 1] - t[: m - 1 - p], xp)[None, :]
+        b = p * _safe_inv(t[p + 1 :] - t[1 : m - p], xp)[None, :]
         return lower[:, :-1] * a - lower[:, 1:] * b
-    basis = np.zeros((len(u), m - 1))
-    basis[np.arange(len(u)), span] = 1.0
-    uu = u[:, None]
+    basis = (span[:, None] == xp.arange(m - 1)[None, :]).astype(u.dtype)
+    uu, tt = u[:, None], t[None, :]
     for q in range(1, p + 1):
-        left = (uu - t[: m - 1 - q]) * _safe_inv(t[q : m - 1] - t[: m - 1 - q])
-        right = (t[q + 1 :] - uu) * _safe_inv(t[q + 1 :] - t[1 : m - q])
+        left = (uu - tt[:, : m - 1 - q]) * _safe_inv(tt[:, q : m - 1] - tt[:, : m - 1 - q], xp)
+        right = (tt[:, q + 1 :] - uu) * _safe_inv(tt[:, q + 1 :] - tt[:, 1 : m - q], xp)
         basis = left * basis[:, :-1] + right * basis[:, 1:]
     return basis
 
@@ -75,7 +79,7 @@ def design_matrix(
     u = np.asarray(u, dtype=np.float64).reshape(-1)
     t = np.asarray(t, dtype=np.float64)
     span = find_span(u, t, k)
-    basis = _basis(u, t, k, nu, span)
+    basis = basis_functions(u, t, k, nu, span)
     if closed:
         n = basis.shape[1] - k
         basis[:, :k] += basis[:, n:]

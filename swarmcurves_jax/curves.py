@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .knots import check_degree_count, make_knots
+from .knots import check_degree_count, check_knots
 from .projection import curve_derivatives
 
 __all__ = ["Curve", "SCHEMA_VERSION"]
@@ -33,7 +33,8 @@ class Curve:
         Rational weights (all ones for a non-rational curve).
     knots : ndarray
         The full knot vector used for evaluation: clamped, length ``n + degree + 1``
-        (open), or uniform periodic, length ``n + 2 degree + 1`` (closed).
+        (open), or periodic with period 1, length ``n + 2 degree + 1`` (closed).  Uniform
+        unless the fit freed the knots (``fit(free_knots=True)``).
     closed, rational : bool
     error, max_error, rms_error : float
         Mean, largest and RMS distance from the data points to the curve, by true
@@ -69,18 +70,11 @@ class Curve:
             raise ValueError(
                 f"weights must be {len(ctrl)} finite positive numbers, got shape {w.shape}"
             )
-        t = np.array(self.knots, dtype=np.float64)
-        expected = make_knots(len(ctrl), self.degree, self.closed)
-        if t.shape != expected.shape or not np.allclose(t, expected, rtol=0, atol=1e-12):
-            kind = "uniform periodic" if self.closed else "clamped uniform"
-            raise ValueError(
-                f"knots must be the {kind} vector of length {len(expected)} for "
-                f"degree {self.degree} and {len(ctrl)} control points"
-            )
+        t = check_knots(self.knots, len(ctrl), self.degree, bool(self.closed))
         object.__setattr__(self, "degree", int(self.degree))
         object.__setattr__(self, "control_points", ctrl)
         object.__setattr__(self, "weights", w)
-        object.__setattr__(self, "knots", expected)
+        object.__setattr__(self, "knots", t)
         object.__setattr__(self, "closed", bool(self.closed))
         object.__setattr__(self, "rational", bool(self.rational))
         if self.residuals is not None:

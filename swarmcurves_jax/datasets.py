@@ -7,7 +7,14 @@ import numpy as np
 from .basis import design_matrix
 from .knots import make_knots
 
-__all__ = ["ANALYTIC", "analytic_points", "random_bspline_points", "builtin", "BUILTIN_NAMES"]
+__all__ = [
+    "ANALYTIC",
+    "analytic_points",
+    "random_bspline_points",
+    "normal_noise",
+    "builtin",
+    "BUILTIN_NAMES",
+]
 
 #: name -> (function of x, x range); each curve is (x, f(x)) sampled evenly in x.
 ANALYTIC = {
@@ -46,6 +53,22 @@ def random_bspline_points(
     ctrl = np.random.default_rng(seed).uniform(-1, 1, (n, dim))
     u = np.linspace(0, 1, num_points, endpoint=not closed)
     return design_matrix(u, make_knots(n, degree, closed), degree, closed=closed) @ ctrl, ctrl
+
+
+def normal_noise(points, sigma: float, seed: int = 0, closed: bool = False) -> np.ndarray:
+    """``points`` moved by Gaussian offsets (standard deviation ``sigma``) along the curve
+    normal, the noise model of the paper's Fig. 7 (2D; normals from central differences)."""
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ValueError(f"points must have shape (N, 2), got {points.shape}")
+    if closed:
+        tangent = np.roll(points, -1, axis=0) - np.roll(points, 1, axis=0)
+    else:
+        tangent = np.gradient(points, axis=0)
+    normal = np.c_[-tangent[:, 1], tangent[:, 0]]
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    offsets = np.random.default_rng(seed).normal(0.0, sigma, len(points))
+    return points + offsets[:, None] * normal
 
 
 BUILTIN_NAMES = (*ANALYTIC, "random_open", "random_closed")

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import pso
+from . import refine as local
 from ._validation import (
     check_bool,
     check_no_unknown,
@@ -25,10 +26,22 @@ from ._validation import (
     check_tol,
     check_weight_bounds,
 )
-from .curves import Curve
 from .basis import design_matrix
-from .fitness import SampleBasis, make_sample_basis, mean_distance
-from .knots import make_knots
+from .curves import Curve
+from .fitness import (
+    SampleBasis,
+    foot_samples,
+    free_knot_basis,
+    make_sample_basis,
+    point_distances,
+)
+from .knots import (
+    curvature_widths,
+    knots_from_widths,
+    logits_from_widths,
+    make_knots,
+    span_widths,
+)
 from .projection import project_points
 from .results import FitResult
 
@@ -61,11 +74,15 @@ def default_num_samples(pairs, closed: bool) -> int:
 
 class _Space(NamedTuple):
     """Static layout of a particle's flat position: ``n_pad`` points of ``dim`` coords,
-    then ``n_pad`` log-weights when rational."""
+    then ``n_pad`` log-weights when rational, then ``num_knots`` knot logits (free knots:
+    :func:`swarmcurves_jax.knots.span_widths`), and what the fitness needs to read them."""
 
     n_pad: int
     dim: int
     rational: bool
+    num_knots: int = 0
+    closed: bool = False
+    num_samples: int = 0
 
     @property
     def num_ctrl(self) -> int:
@@ -73,20 +90,54 @@ class _Space(NamedTuple):
 
     @property
     def size(self) -> int:
-        return self.num_ctrl + (self.n_pad if self.rational else 0)
+        return self.num_ctrl + (self.n_pad if self.rational else 0) + self.num_knots
+
+    def knot_logits(self, q):
+        return q[self.size - self.num_knots :]
+
+    def basis(self, q, pair, k, fixed: SampleBasis) -> SampleBasis:
+        """The fitness's sample basis: ``fixed`` (precomputed), or from ``q``'s free knots."""
+        if not self.num_knots:
+            return fixed
+        spans = pair[1] if self.closed else pair[1] - pair[0]
+        reach = None if (k <= 3 and not self.rational) else 1.5
+        return free_knot_basis(
+            self.knot_logits(q), spans, k, self.closed, self.num_samples, self.n_pad, reach
+        )
 
     def split(self, q):
         """``(ctrl (n_pad, dim), log_weights (n_pad,) or None)`` of a position (JAX or NumPy)."""
         ctrl = q[: self.num_ctrl].reshape(self.n_pad, self.dim)
-        return ctrl, (q[self.num_ctrl :] if self.rational else None)
+        return ctrl, (q[self.num_ctrl : self.num_ctrl + self.n_pad] if self.rational else None)
 
 
-def _particle_fitness(q, basis, points, space):
+def _geometry(q, space):
     ctrl, log_w = space.split(q)
-    return mean_distance(ctrl, None if log_w is None else jnp.exp(log_w), basis, points)
+    return ctrl, None if log_w is None else jnp.exp(log_w)
 
 
-@functools.partial(jax.jit, static_argnames=("space", "num_particles", "num_steps", "seeded"))
+def _distances(q, basis, points, space, pair, k, foot=None):
+    """Estimated distance of every point to the curve of position ``q``: shape (N,)."""
+    return point_distances(*_geometry(q, space), space.basis(q, pair, k, basis), points, foot)
+
+
+def _by_degree(fn, groups, *args):
+    """``vmap(fn)`` over swarms; with free knots, per degree group (static ``k``: the
+    knot recursion's depth), concatenated.  ``groups``: ``(k, first, stop)`` slices."""
+    if groups is None:
+        return jax.vmap(functools.partial(fn, k=None))(*args)
+    parts = [
+        jax.vmap(functools.partial(fn, k=k))(
+            *(jax.tree_util.tree_map(lambda a, i=i, j=j: a[i:j], x) for x in args)
+        )
+        for k, i, j in groups
+    ]
+    return jax.tree_util.tree_map(lambda *p: jnp.concatenate(p), *parts)
+
+
+@functools.partial(
+    jax.jit, static_argnames=("space", "num_particles", "num_steps", "seeded", "groups")
+)
 def _swarm_program(
     root_key,
     pairs,
@@ -103,6 +154,7 @@ def _swarm_program(
     num_particles,
     num_steps,
     seeded,
+    groups,
 ):
     """Run ``num_steps`` PSO steps of every swarm; swarms whose ``step`` is 0 start fresh.
 
@@ -110,15 +162,47 @@ def _swarm_program(
     does not depend on which other swarms share the call.
     """
 
-    def one_swarm(pair, state, box, basis, seed):
+    def one_swarm(pair, state, box, basis, seed, k):
         key = jax.random.fold_in(jax.random.fold_in(root_key, pair[0]), pair[1])
         init_key, run_key = jax.random.split(key)
         fresh = pso.init(init_key, box, num_particles, seed if seeded else None)
         state = jax.tree_util.tree_map(lambda a, b: jnp.where(state.step == 0, a, b), fresh, state)
-        fitness_fn = jax.vmap(lambda q: _particle_fitness(q, basis, points, space))
+        fitness_fn = jax.vmap(lambda q: jnp.mean(_distances(q, basis, points, space, pair, k)))
         return pso.run(run_key, state, params, box, fitness_fn, num_steps, tol, max_steps)
 
-    return jax.vmap(one_swarm)(pairs, state, boxes, bases, seeds)
+    return _by_degree(one_swarm, groups, pairs, state, boxes, bases, seeds)
+
+
+#: Starts refined per swarm: its best, its least-squares seed, its next best particles.
+REFINE_STARTS = 4
+
+
+@functools.partial(jax.jit, static_argnames=("space", "method", "seeded", "groups"))
+def _refine_program(pairs, state, boxes, bases, seeds, points, *, space, method, seeded, groups):
+    """Polish every swarm from ``REFINE_STARTS`` starts; per swarm, the result with the best
+    hold-out score (:data:`swarmcurves_jax.refine.HOLDOUT_EVERY`) and its fitness."""
+
+    def one_swarm(pair, state, box, basis, seed, k):
+        def residuals(q, foot):
+            return _distances(q, basis, points, space, pair, k, foot)
+
+        def search(q):
+            return foot_samples(*_geometry(q, space), space.basis(q, pair, k, basis), points)
+
+        free = box.mask * (box.lower != box.upper)  # pinned ends and padding stay
+        others = min(REFINE_STARTS - 1 - int(seeded), state.pbest_fitness.shape[0])
+        _, top = jax.lax.top_k(-state.pbest_fitness, others)
+        starts = [state.best_position[None], state.pbest_position[top]]
+        starts = jnp.concatenate(starts + ([seed[None]] if seeded else []))
+        polish = local.levenberg_marquardt if method == "lm" else local.lbfgs
+        holdout = (jnp.arange(points.shape[0]) % local.HOLDOUT_EVERY == 2).astype(points.dtype)
+        xs, fs, scores = jax.vmap(
+            lambda x0: polish(residuals, search, x0, free, box.lower, box.upper, holdout)
+        )(starts)
+        i = jnp.argmin(jnp.where(jnp.isnan(scores), jnp.inf, scores))
+        return xs[i], fs[i]
+
+    return _by_degree(one_swarm, groups, pairs, state, boxes, bases, seeds)
 
 
 def _empty_state(num_swarms, num_particles, dim, dtype) -> pso.PSOState:
@@ -138,11 +222,17 @@ def _empty_state(num_swarms, num_particles, dim, dtype) -> pso.PSOState:
     )
 
 
+#: Knot logits stay in [-3, 3]: span widths then differ by up to e^6 ~ 400x before the
+#: minimum span (MIN_SPAN_FRACTION of a uniform span) takes over.
+KNOT_LOGIT_BOUND = 3.0
+
+
 def _boxes(pairs, space: _Space, weight_bounds, ends, dtype) -> pso.Box:
     """Per-swarm search boxes.
 
     Control points start in U[-1, 1] and are unbounded after; log-weights start in
-    U[-1, 1] and stay inside log(weight_bounds).  ``ends`` ((2, D) or None) pins the first
+    U[-1, 1] and stay inside log(weight_bounds); knot logits start in U[-0.1, 0.1] (near
+    uniform knots) and stay inside +-KNOT_LOGIT_BOUND.  ``ends`` ((2, D) or None) pins the first
     and last control points of open curves to the data's end points (lower = upper).
     """
     num_ctrl, size = space.num_ctrl, space.size
@@ -153,12 +243,18 @@ def _boxes(pairs, space: _Space, weight_bounds, ends, dtype) -> pso.Box:
         lower[num_ctrl:], upper[num_ctrl:] = wlo, whi
         init_lo[num_ctrl:] = np.maximum(-1.0, wlo)
         init_hi[num_ctrl:] = np.minimum(1.0, whi)
+    if space.num_knots:
+        init_lo[-space.num_knots :], init_hi[-space.num_knots :] = -0.1, 0.1
+        lower[-space.num_knots :], upper[-space.num_knots :] = -KNOT_LOGIT_BOUND, KNOT_LOGIT_BOUND
     boxes = []
-    for _, n in pairs:
+    for k, n in pairs:
         b = [init_lo.copy(), init_hi.copy(), lower.copy(), upper.copy(), np.zeros(size)]
         b[4][: n * space.dim] = 1
         if space.rational:
             b[4][num_ctrl : num_ctrl + n] = 1
+        if space.num_knots:
+            first = size - space.num_knots
+            b[4][first : first + (n if space.closed else n - k)] = 1
         if ends is not None:
             for row, point in ((0, ends[0]), (n - 1, ends[1])):
                 sl = slice(row * space.dim, (row + 1) * space.dim)
@@ -185,7 +281,7 @@ def _lsq(b, points, ends):
     return np.vstack([ends[0], inner, ends[1]])
 
 
-def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20) -> np.ndarray:
+def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20, t=None) -> np.ndarray:
     """Linear least-squares control points with parameter correction (the swarm's seed).
 
     Starts from chord-length parameters, then ``rounds`` times moves every point's
@@ -193,9 +289,9 @@ def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20) -> np.
     again (Hoschek's correction).  Chord lengths alone misplace the parameters of looping
     curves; measured on random closed cubics the correction lifts recovery from 4 to 6
     of 12 (``benchmarks/recovery_rates.py``).  With ``ends`` the first and last control
-    points are fixed.
+    points are fixed.  ``t``: the knot vector (default: the uniform one).
     """
-    t = make_knots(n, k, closed)
+    t = make_knots(n, k, closed) if t is None else t
     ctrl = _lsq(design_matrix(chord_parameters(points, closed), t, k, closed=closed), points, ends)
     grid = np.linspace(0.0, 1.0, 2048, endpoint=not closed)
     dense = design_matrix(grid, t, k, closed=closed)
@@ -216,7 +312,15 @@ def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
     """One least-squares position per swarm, laid out like a particle."""
     out = np.zeros((len(pairs), space.size))
     for i, (k, n) in enumerate(pairs):
-        ctrl = least_squares_ctrl(norm_pts, n, k, closed, ends)
+        t = None
+        if space.num_knots:  # free knots: start where the data turn (knots.curvature_widths)
+            spans = n if closed else n - k
+            logits = logits_from_widths(curvature_widths(norm_pts, spans, closed))
+            logits = np.clip(logits, -KNOT_LOGIT_BOUND, KNOT_LOGIT_BOUND)
+            first = space.size - space.num_knots
+            out[i, first : first + spans] = logits
+            t = _knots(out[i], k, n, space)
+        ctrl = least_squares_ctrl(norm_pts, n, k, closed, ends, t=t)
         out[i, : n * space.dim] = ctrl.ravel()
     return out.astype(dtype)
 
@@ -258,8 +362,10 @@ def fit(
     *,
     closed: bool = False,
     rational: bool = False,
+    free_knots: bool = False,
     fix_ends: bool = True,
     init: str = "lsq",
+    refine: bool | str = True,
     particles: int = 64,
     iterations: int = 2000,
     tol: float | None = None,
@@ -294,6 +400,19 @@ def fit(
         an open curve on clamped uniform knots (end points interpolated).
     rational : bool
         Optimise NURBS weights too, inside ``weight_bounds``; reported scaled to max 1.
+    free_knots : bool
+        Let the swarm (and the refinement) move the interior knots too, kept sorted with
+        every span at least 10 % of a uniform one (:mod:`swarmcurves_jax.knots`), so knots
+        gather where the curvature is high.  Default: the paper's fixed uniform knots.
+    init : {"lsq", "uniform"}
+        ``"lsq"`` puts one particle per swarm on the least-squares fit (with parameter
+        correction); ``"uniform"`` starts every particle in U[-1, 1] as the paper does.
+    refine : bool or {"lm", "lbfgs"}
+        Polish every swarm's solution locally after the swarm (see
+        :mod:`swarmcurves_jax.refine`): ``True`` or ``"lm"`` is Levenberg–Marquardt on
+        the orthogonal distances, ``"lbfgs"`` optax's L-BFGS, ``False`` the paper's pure
+        PSO.  A polished solution replaces the swarm's only if its measured error is
+        lower.
     particles : int
         Particles per swarm.
     iterations : int
@@ -344,6 +463,7 @@ def fit(
     check_no_unknown(unknown, _FIT_ARGS)
     pts = check_points(points)
     closed, rational = check_bool(closed, "closed"), check_bool(rational, "rational")
+    free_knots = check_bool(free_knots, "free_knots")
     fix_ends, progress = check_bool(fix_ends, "fix_ends"), check_bool(progress, "progress")
     if callback is not None and not callable(callback):
         raise ValueError(f"callback must be callable or None, got {callback!r}")
@@ -355,6 +475,7 @@ def fit(
     weight_bounds = check_weight_bounds(weight_bounds)
     if init not in ("lsq", "uniform"):
         raise ValueError(f"init must be 'lsq' or 'uniform', got {init!r}")
+    method = _refine_method(refine)
     if closed:
         pts = _drop_closing_duplicate(pts)
     n_max = max(n for _, n in pairs)
@@ -391,7 +512,16 @@ def fit(
     # (which moves norm_pts by rounding only) cannot tip the seed's nearest-point choices.
     fit_pts = fit_pts.astype(dtype).astype(np.float64)
     dim = pts.shape[1]
-    space = _Space(n_pad=n_max, dim=dim, rational=rational)
+    degrees_used = sorted({k for k, _ in pairs})
+    space = _Space(
+        n_pad=n_max,
+        dim=dim,
+        rational=rational,
+        num_knots=(n_max if closed else n_max - degrees_used[0]) if free_knots else 0,
+        closed=closed,
+        num_samples=num_samples,
+    )
+    groups = _degree_groups(pairs) if free_knots else None
     ends = fit_pts[[0, -1]] if (fix_ends and not closed) else None
     boxes = _boxes(pairs, space, weight_bounds, ends, dtype)
     _check_memory(
@@ -447,6 +577,7 @@ def fit(
                 num_particles=num_particles,
                 num_steps=steps,
                 seeded=init == "lsq",
+                groups=groups,
             )
             history.append(info.best_fitness)
             done += steps
@@ -470,15 +601,35 @@ def fit(
     if not history:
         raise KeyboardInterrupt
 
-    final = jax.device_get((state.best_position, state.best_fitness, state.step))
+    swarm = jax.device_get((state.best_position, state.best_fitness, state.step))
+    swarm_done = time.perf_counter()
+    timings = {"swarm": swarm_done - start}
+    candidates = [[(swarm[0][i], float(swarm[1][i]), False)] for i in range(len(pairs))]
+    if method is not None and stop_reason != "interrupted":
+        refined = jax.device_get(
+            _refine_program(
+                pair_ids,
+                state,
+                boxes,
+                bases,
+                seeds,
+                data,
+                space=space,
+                method=method,
+                seeded=init == "lsq",
+                groups=groups,
+            )
+        )
+        for i, options in enumerate(candidates):
+            if refined[1][i] < options[0][1]:
+                options.append((refined[0][i], float(refined[1][i]), True))
     history = np.concatenate(jax.device_get(history), axis=1)[:, :iterations]
     solutions = [
         _make_curve(
             k,
             n,
-            final[0][i],
-            float(final[1][i]),
-            int(final[2][i]),
+            candidates[i],
+            int(swarm[2][i]),
             space,
             closed,
             norm_pts,
@@ -488,6 +639,8 @@ def fit(
         )
         for i, (k, n) in enumerate(pairs)
     ]
+    if method is not None and stop_reason != "interrupted":
+        timings["refine"] = time.perf_counter() - swarm_done
     return FitResult(
         solutions=solutions,
         points=pts,
@@ -497,7 +650,29 @@ def fit(
         stop_reason=stop_reason,
         seed=seed_value,
         wall_time=time.perf_counter() - start,
+        timings=timings,
     )
+
+
+def _degree_groups(pairs) -> tuple[tuple[int, int, int], ...]:
+    """``(degree, first, stop)`` of each run of equal degrees in ``pairs`` (sorted)."""
+    out = []
+    for i, (k, _) in enumerate(pairs):
+        if out and out[-1][0] == k:
+            out[-1][2] = i + 1
+        else:
+            out.append([k, i, i + 1])
+    return tuple(tuple(g) for g in out)
+
+
+def _refine_method(refine) -> str | None:
+    if refine is True:
+        return "lm"
+    if refine is False or refine is None:
+        return None
+    if isinstance(refine, str) and refine in local.METHODS:
+        return refine
+    raise ValueError(f"refine must be True, False, 'lm' or 'lbfgs', got {refine!r}")
 
 
 def _canonical_order(points: np.ndarray) -> np.ndarray:
@@ -560,17 +735,38 @@ def _best_per_degree(pairs, best) -> str:
     return " ".join(f"d{k}={v:.2e}" for k, v in out.items())
 
 
-def _make_curve(k, n, q, fitness, steps, space, closed, norm_pts, center, scale, seed):
-    """Host side: un-pad, measure by true projection, map back to the caller's frame."""
-    ctrl, log_w = space.split(np.asarray(q, dtype=np.float64))
-    ctrl = ctrl[:n]
-    weights = np.ones(n) if log_w is None else np.exp(log_w[:n] - log_w[:n].max())
-    t = make_knots(n, k, closed)
-    dist, foot = project_points(norm_pts, ctrl, weights, t, k, closed)
+def _knots(q, k, n, space) -> np.ndarray:
+    """The knot vector of a position: fixed uniform, or from its knot logits (float64)."""
+    if not space.num_knots:
+        return make_knots(n, k, space.closed)
+    spans = n if space.closed else n - k
+    logits = space.knot_logits(q)[: space.n_pad if space.closed else space.n_pad - k]
+    t = knots_from_widths(span_widths(logits, spans), spans, k, space.closed)
+    return t[: spans + 2 * k + 1]
+
+
+def _make_curve(k, n, candidates, steps, space, closed, norm_pts, center, scale, seed):
+    """Host side: un-pad, measure by true projection, map back to the caller's frame.
+
+    ``candidates``: ``(position, fitness, refined)`` of the swarm's best and, if its
+    fitness is lower, the refined one; the lower true error wins (the fitness is an
+    estimate, so a refinement that lowers it could still raise the error).
+    """
+    measured = []
+    for q, fitness, refined in candidates:
+        q = np.asarray(q, dtype=np.float64)
+        t = _knots(q, k, n, space)
+        ctrl, log_w = space.split(q)
+        ctrl = ctrl[:n]
+        weights = np.ones(n) if log_w is None else np.exp(log_w[:n] - log_w[:n].max())
+        dist, foot = project_points(norm_pts, ctrl, weights, t, k, closed)
+        measured.append((float(np.mean(dist)), ctrl, weights, t, dist, foot, fitness, refined))
+    error, ctrl, weights, t, dist, foot, fitness, refined = min(
+        measured, key=lambda m: math.inf if math.isnan(m[0]) else m[0]
+    )
     if _runs_backwards(foot, closed):  # same geometry, traversed like the input
         ctrl, weights = ctrl[::-1], weights[::-1]
     diag = float(np.linalg.norm(np.ptp(norm_pts, axis=0)))
-    error = float(np.mean(dist))
     return Curve(
         degree=k,
         control_points=center + scale * ctrl,
@@ -586,6 +782,7 @@ def _make_curve(k, n, q, fitness, steps, space, closed, norm_pts, center, scale,
         info={
             "iterations": steps,
             "fitness": fitness,
+            "refined": refined,
             "seed": seed,
         },
     )

@@ -18,14 +18,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .basis import design_matrix
-from .knots import breakpoints, make_knots
+from .basis import basis_functions, design_matrix
+from .knots import breakpoints, knots_from_widths, make_knots, span_widths
 
 __all__ = [
     "SampleBasis",
     "make_sample_basis",
+    "free_knot_basis",
     "curve_samples",
     "nearest_sample",
+    "nearest_sample_dense",
+    "foot_samples",
     "point_distances",
     "mean_distance",
 ]
@@ -35,7 +38,9 @@ class SampleBasis(NamedTuple):
     """Basis matrices at the fitness's sample parameters for one (degree, n, knots).
 
     ``b0 .. b3``: shape (M, n_pad), values and three derivatives (zero columns pad ``n``);
-    ``lo, hi``: shape (M,), how far the parameter may move from each sample.
+    ``lo, hi``: shape (M,), how far the parameter may move from each sample;
+    ``half_step``: shape (M,), half the parameter distance to the neighbouring samples
+    (the tangent segments of the nearest-sample search span it).
     """
 
     b0: jax.Array
@@ -44,6 +49,7 @@ class SampleBasis(NamedTuple):
     b3: jax.Array
     lo: jax.Array
     hi: jax.Array
+    half_step: jax.Array
 
 
 def make_sample_basis(
@@ -72,7 +78,42 @@ def make_sample_basis(
     lo, hi = breaks[span] - u, breaks[span + 1] - u
     if reach is not None:
         lo, hi = np.maximum(lo, -reach * h), np.minimum(hi, reach * h)
-    return SampleBasis(*mats, lo, hi)
+    return SampleBasis(*mats, lo, hi, np.full(num_samples, 0.5 * h))
+
+
+def free_knot_basis(
+    logits: jax.Array,
+    num_spans: jax.Array,
+    k: int,
+    closed: bool,
+    num_samples: int,
+    n_pad: int,
+    reach: float | None = None,
+) -> SampleBasis:
+    """:func:`make_sample_basis` for free knots, in JAX, differentiable in ``logits``.
+
+    ``logits`` (S_pad,) place the breakpoints (:func:`~swarmcurves_jax.knots.span_widths`);
+    ``num_spans`` (traced) is ``n - k`` open, ``n`` closed.  Every span gets the samples a
+    uniform span would: sample ``m`` sits at the same fraction of its span as on uniform
+    knots, so narrow spans stay covered.
+    """
+    logits = logits[: n_pad if closed else n_pad - k]  # the most spans n_pad columns allow
+    widths = span_widths(logits, num_spans, jnp)
+    t = knots_from_widths(widths, num_spans, k, closed, jnp)
+    v = (jnp.arange(num_samples) + 0.5) / num_samples * num_spans
+    span = jnp.minimum(jnp.floor(v).astype(jnp.int32), num_spans - 1)
+    start = t[span + k]
+    u = start + (v - span) * widths[span]
+    mats = [basis_functions(u, t, k, nu, span + k, jnp) for nu in range(4)]
+    if closed:  # basis function c drives control point c mod n
+        cols = jnp.arange(mats[0].shape[1]) % num_spans
+        fold = (cols[:, None] == jnp.arange(n_pad)[None, :]).astype(u.dtype)
+        mats = [b @ fold for b in mats]
+    lo, hi = start - u, t[span + k + 1] - u
+    step = widths[span] * num_spans / num_samples  # the samples' spacing in their span
+    if reach is not None:
+        lo, hi = jnp.maximum(lo, -reach * step), jnp.minimum(hi, reach * step)
+    return SampleBasis(*mats, lo, hi, 0.5 * step)
 
 
 def curve_samples(ctrl: jax.Array, weights: jax.Array | None, basis: SampleBasis):
@@ -148,13 +189,44 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
     return jnp.minimum(jax.lax.bitcast_convert_type(best, jnp.int32) & low, num - 1)
 
 
+def nearest_sample_dense(points: jax.Array, samples: jax.Array, tangents: jax.Array) -> jax.Array:
+    """:func:`nearest_sample` as a plain (N, M) ``argmin``: slower to run on XLA:CPU but
+    about ten times quicker to compile, for code that searches only a few dozen times."""
+    diff = points[:, None, :] - samples[None, :, :]
+    along = jnp.sum(diff * tangents[None], axis=2)
+    len2 = jnp.sum(tangents**2, axis=1)
+    len2 = len2[None, :]
+    s = jnp.clip(along / jnp.maximum(len2, 1e-30), -1.0, 1.0)
+    d2 = jnp.sum(diff**2, axis=2) - s * (2.0 * along - s * len2)
+    return jnp.argmin(d2, axis=1).astype(jnp.int32)
+
+
 _NEWTON_STEPS = 3
 
 
-def point_distances(
+def foot_samples(
     ctrl: jax.Array, weights: jax.Array | None, basis: SampleBasis, points: jax.Array
 ) -> jax.Array:
-    """Estimated distance from every point (N, D) to the curve: shape (N,).
+    """Index of the sample each point's Newton search starts from: (N,) int32.
+
+    Piecewise constant in the curve, so it has no derivative: a caller that differentiates
+    :func:`point_distances` computes it once and passes it, keeping the search out of the
+    differentiated graph.  Uses :func:`nearest_sample_dense` (quick to compile).
+    """
+    c0, c1 = curve_samples(ctrl, weights, basis)[:2]
+    return nearest_sample_dense(points, c0, c1 * basis.half_step[:, None])
+
+
+def point_distances(
+    ctrl: jax.Array,
+    weights: jax.Array | None,
+    basis: SampleBasis,
+    points: jax.Array,
+    foot: jax.Array | None = None,
+) -> jax.Array:
+    """Estimated distance from every point (N, D) to the curve: shape (N,); differentiable
+    in the control points and weights (used by :mod:`swarmcurves_jax.refine`).
+    ``foot``: the search's result (:func:`foot_samples`), if already known.
 
     After the search everything is component-major, one 1-D gather per component: on
     XLA:CPU a trailing axis of 2 or 3 vectorises badly and a 2-D gather under ``vmap`` is
@@ -162,8 +234,10 @@ def point_distances(
     """
     dim = points.shape[1]
     c = curve_samples(ctrl, weights, basis)
-    half_cell = 0.5 / basis.b0.shape[0]
-    j = nearest_sample(points, c[0], c[1] * half_cell)
+    if foot is None:
+        j = nearest_sample(points, c[0], c[1] * basis.half_step[:, None])
+    else:
+        j = foot
     table = [x[:, i] for x in c for i in range(dim)] + [basis.lo, basis.hi]
     table, j = jax.lax.optimization_barrier((table, j))
     near = [col[j] for col in table]  # 4 D + 2 arrays of shape (N,)
@@ -185,9 +259,12 @@ def point_distances(
         h = sum(dq[i] * dq[i] + q[i] * ddq[i] for i in range(dim))
         to_bound = jnp.where(g > 0, lo, hi) - delta
         delta = jnp.clip(delta + jnp.where(h > 0, -g / jnp.where(h > 0, h, 1.0), to_bound), lo, hi)
+    # The foot point is optimal, so by the envelope theorem the distance's derivative with
+    # respect to the curve is its partial at a fixed foot: no gradient through Newton.
+    delta = jax.lax.stop_gradient(delta)
     q2 = sum(x * x for x in model(delta)[0])
     r2 = sum(x * x for x in r)
-    return jnp.sqrt(jnp.minimum(q2, r2))
+    return jnp.sqrt(jnp.minimum(q2, r2) + 1e-30)  # + a normal float: finite gradient at 0
 
 
 def mean_distance(

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .knots import clamped_uniform_knots, periodic_uniform_knots
+from .knots import check_knots
 
 __all__ = ["insert_knot", "clamped_form", "bezier_segments", "to_scipy", "from_scipy", "to_geomdl"]
 
@@ -43,8 +43,9 @@ def clamped_form(curve) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The same curve on a clamped knot vector: ``(t, control_points, weights)``.
 
     Open curves are returned as they are.  A closed curve with ``n`` control points
-    becomes ``n + degree`` clamped control points on clamped uniform knots (the first and
-    last coincide), which is the form CAD formats and geomdl expect.
+    becomes ``n + degree`` clamped control points on the clamped knots with the same
+    interior (the first and last coincide), which is the form CAD formats and geomdl
+    expect.
     """
     t, cw = _unwrap(curve)
     k = curve.degree
@@ -56,7 +57,7 @@ def clamped_form(curve) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         b = int(np.searchsorted(t, 1.0, side="right"))
         t = t[a:b]
         cw = cw[a : a + len(t) - k - 1]
-        t = clamped_uniform_knots(len(cw), k)  # the same values, free of rounding
+        t[: k + 1], t[-k - 1 :] = 0.0, 1.0  # the clamped ends, free of rounding
     return t, cw[:, :-1] / cw[:, -1:], cw[:, -1].copy()
 
 
@@ -95,27 +96,35 @@ def to_scipy(curve):
 
 
 def from_scipy(spline, curve_cls):
-    """A ``Curve`` from a ``BSpline`` on clamped uniform or periodic uniform knots."""
+    """A ``Curve`` from a ``BSpline`` on clamped knots over [0, 1], or on periodic knots
+    (period 1) with the first ``k`` coefficients repeated at the end."""
     t = np.asarray(spline.t, dtype=np.float64)
     c = np.asarray(spline.c, dtype=np.float64)
     k = int(spline.k)
     if c.ndim != 2 or c.shape[1] not in (2, 3):
         raise ValueError(f"from_scipy: spline.c must have shape (n, 2) or (n, 3), got {c.shape}")
-    n = len(c)
-    if len(t) == n + k + 1 and np.allclose(t, clamped_uniform_knots(n, k), atol=1e-12):
+    n, m = len(c), len(c) - k
+    if len(t) == n + k + 1 and _valid_knots(t, n, k, closed=False):
         return curve_cls(k, c, np.ones(n), t, closed=False)
-    m = n - k
     if (
         m >= k + 1
         and len(t) == m + 2 * k + 1
-        and np.allclose(t, periodic_uniform_knots(m, k), atol=1e-12)
+        and _valid_knots(t, m, k, closed=True)
         and np.allclose(c[m:], c[:k], atol=1e-12)
     ):
         return curve_cls(k, c[:m], np.ones(m), t, closed=True)
     raise ValueError(
-        "from_scipy: only clamped uniform knots, or uniform periodic knots with the first "
+        "from_scipy: only clamped knots on [0, 1], or periodic knots (period 1) with the first "
         "degree coefficients repeated at the end, describe a swarmcurves_jax Curve"
     )
+
+
+def _valid_knots(t, n, k, closed) -> bool:
+    try:
+        check_knots(t, n, k, closed)
+    except ValueError:
+        return False
+    return True
 
 
 def to_geomdl(curve):

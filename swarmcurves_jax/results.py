@@ -18,6 +18,7 @@ _COLUMNS = (
     ("max_error", "max_error", "{:.3e}"),
     ("rms_error", "rms_error", "{:.3e}"),
     ("error_pct_diag", "%diag", "{:.4f}"),
+    ("bic", "bic", "{:.1f}"),
     ("iterations", "iters", "{:d}"),
 )
 
@@ -63,6 +64,9 @@ class FitResult:
     seed : int or None
     wall_time : float
         Seconds spent in ``fit`` (compilation included).
+    timings : dict
+        Seconds per stage: ``"swarm"`` (setup, compilation and the swarm) and, when the
+        solutions were refined, ``"refine"``.
     """
 
     solutions: list[Curve]
@@ -73,18 +77,71 @@ class FitResult:
     stop_reason: str
     seed: int | None
     wall_time: float
+    timings: dict = dataclasses.field(default_factory=dict)
 
     @property
     def best(self) -> Curve:
         """The solution with the lowest ``error``."""
         return min(self.solutions, key=lambda c: math.inf if math.isnan(c.error) else c.error)
 
-    def sparsest(self, max_error_pct_diag: float = 0.35) -> Curve | None:
-        """The solution with the fewest control points whose ``error_pct_diag`` is within
-        ``max_error_pct_diag`` (ties: the lower error); ``None`` if none is.  The default
-        0.35 % is the paper's typical error."""
-        ok = [c for c in self.solutions if c.error_pct_diag <= max_error_pct_diag]
+    def sparsest(
+        self, max_error_pct_diag: float = 0.35, *, max_error: float | None = None
+    ) -> Curve | None:
+        """The solution with the fewest control points that is good enough, or ``None``.
+
+        Good enough: ``error_pct_diag <= max_error_pct_diag`` (default 0.35 %, the paper's
+        typical error) or, if given, ``error <= max_error`` (mean distance, normalised
+        frame) instead.  Ties on the count go to the lower error.
+        """
+        if max_error is not None:
+            ok = [c for c in self.solutions if c.error <= max_error]
+        else:
+            ok = [c for c in self.solutions if c.error_pct_diag <= max_error_pct_diag]
         return min(ok, key=lambda c: (c.n_ctrl, c.error)) if ok else None
+
+    def knee(self, degree: int | None = None) -> Curve:
+        """The knee of the error-versus-control-points curve of one degree (default: the
+        best solution's): past it, more control points buy little.
+
+        Kneedle's rule on ``log10(error)`` against ``n``, both scaled to [0, 1]: the count
+        furthest below the straight line from the fewest to the most control points.
+        Needs at least three counts of that degree.
+        """
+        curves = self._of_degree(self.best.degree if degree is None else degree)
+        if len(curves) < 3:
+            raise ValueError(
+                f"knee needs at least 3 control-point counts of degree {curves[0].degree}, "
+                f"got {len(curves)}"
+            )
+        n = np.array([c.n_ctrl for c in curves], dtype=np.float64)
+        e = np.log10(np.maximum([c.error for c in curves], 1e-300))
+        x = (n - n[0]) / (n[-1] - n[0])
+        span = e[0] - e[-1]
+        y = (e - e[-1]) / span if span > 0 else np.zeros_like(e)
+        below = (1.0 - x) - y  # the chord runs from (0, 1) to (1, 0)
+        return curves[int(np.argmax(below))]
+
+    def select(self, criterion: str = "bic", degree: int | None = None) -> Curve:
+        """The solution with the lowest information criterion, ``"bic"`` or ``"aic"``.
+
+        With Gaussian noise along the normal the orthogonal residuals give
+        ``N log(RSS / N) + penalty * p``, ``p`` the curve's free numbers (``n D``, plus
+        ``n - 1`` weights when rational; the foot-point parameters are the same for every
+        solution and cancel), penalty ``log N`` (BIC) or 2 (AIC).  Meaningful on noisy
+        data; on exact data RSS keeps falling to rounding and the choice is arbitrary.
+        ``degree`` restricts the choice to one degree.
+        """
+        if criterion not in ("bic", "aic"):
+            raise ValueError(f"criterion must be 'bic' or 'aic', got {criterion!r}")
+        curves = self.solutions if degree is None else self._of_degree(degree)
+        return min(curves, key=lambda c: _criteria(c, len(self.points))[criterion])
+
+    def _of_degree(self, degree: int) -> list[Curve]:
+        curves = sorted((c for c in self.solutions if c.degree == degree), key=lambda c: c.n_ctrl)
+        if not curves:
+            have = sorted({c.degree for c in self.solutions})
+            raise ValueError(f"degree must be one of {have}, got {degree!r}")
+        return curves
 
     def __getitem__(self, key: tuple[int, int]) -> Curve:
         """``result[degree, n]``: the solution of that degree and control-point count."""
@@ -105,7 +162,8 @@ class FitResult:
         return iter(self.solutions)
 
     def table(self) -> Table:
-        """One row per solution: degree, n_ctrl, error, max_error, rms_error, ..."""
+        """One row per solution: degree, n_ctrl, error, max_error, rms_error,
+        error_pct_diag, aic, bic (see :meth:`select`), iterations, ..."""
         rows = Table()
         for c in self.solutions:
             rows.append(
@@ -118,6 +176,7 @@ class FitResult:
                     "max_error": c.max_error,
                     "rms_error": c.rms_error,
                     "error_pct_diag": c.error_pct_diag,
+                    **_criteria(c, len(self.points)),
                     "iterations": int(c.info.get("iterations", 0)),
                 }
             )
@@ -134,3 +193,13 @@ class FitResult:
     def normalised(self, points) -> np.ndarray:
         """``points`` (M, D) mapped into the normalised frame the errors are measured in."""
         return (np.asarray(points, dtype=np.float64) - self.center) / self.scale
+
+
+def _criteria(curve: Curve, num_points: int) -> dict[str, float]:
+    """AIC and BIC of a solution from its RMS orthogonal residual (see FitResult.select)."""
+    p = curve.n_ctrl * curve.dim + (curve.n_ctrl - 1 if curve.rational else 0)
+    rss = num_points * curve.rms_error**2
+    fit_term = (
+        num_points * math.log(max(rss / num_points, 1e-300)) if not math.isnan(rss) else math.inf
+    )
+    return {"aic": fit_term + 2 * p, "bic": fit_term + math.log(num_points) * p}

@@ -60,9 +60,20 @@ def test_scipy_refuses_what_it_cannot_hold():
 
     with pytest.raises(ValueError, match="scipy's BSpline is not rational"):
         random_curve(3, False, True, 2).to_scipy()
-    t = np.r_[0, 0, 0, 0, 0.3, 1, 1, 1, 1]
-    with pytest.raises(ValueError, match="only clamped uniform knots"):
+    t = np.r_[0, 0, 0, 0, 0.3, 2, 2, 2, 2]  # clamped, but not on [0, 1]
+    with pytest.raises(ValueError, match=r"only clamped knots on \[0, 1\]"):
         Curve.from_scipy(BSpline(t, np.zeros((5, 2)), 3))
+
+
+def test_scipy_non_uniform_clamped_knots_round_trip():
+    from scipy.interpolate import BSpline
+
+    t = np.r_[0, 0, 0, 0, 0.3, 1, 1, 1, 1]
+    c = np.random.default_rng(0).uniform(-1, 1, (5, 2))
+    curve = Curve.from_scipy(BSpline(t, c, 3))
+    u = np.linspace(0, 1, 30)
+    np.testing.assert_allclose(curve.evaluate(u), BSpline(t, c, 3)(u), atol=1e-14)
+    np.testing.assert_array_equal(curve.to_scipy().t, t)
 
 
 @pytest.mark.parametrize(

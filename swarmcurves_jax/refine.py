@@ -1,0 +1,156 @@
+"""Local refinement of swarm solutions: the swarm finds the basin, a local method polishes.
+
+PSO reaches a good basin but converges slowly inside it.  From a few starts per swarm (its
+best, its least-squares seed and its best other particles) we minimise the orthogonal
+point-to-curve distances ``d_i`` over the free coordinates of a particle:
+
+* ``"lm"`` (default): Levenberg–Marquardt on ``sum d_i^2``, then iteratively reweighted
+  (weights ``1 / d_i``) towards the mean distance that the error reports.  ``d_i`` is the
+  fitness's distance with the foot-point parameter held at its optimum (the envelope
+  theorem), so the Jacobian is exact: the foot points are optimised by projection inside
+  every evaluation rather than as extra unknowns.
+* ``"lbfgs"``: optax's L-BFGS (zoom line search) directly on the mean distance.
+
+Everything is pure JAX: the caller vmaps it over starts and swarms in one program.
+Measured in ``benchmarks/peers_accuracy.py``: LM reaches lower errors in 40 steps than
+L-BFGS in 300 on f1-f5, so it is the default.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import optax
+
+__all__ = ["METHODS", "levenberg_marquardt", "lbfgs"]
+
+METHODS = ("lm", "lbfgs")
+
+#: Every this many points, one is held out of the fit: the iterate (and start) with the
+#: lowest hold-out error is kept, so a refinement stops before it fits the noise.
+HOLDOUT_EVERY = 5
+
+#: Steps of each stage.  LM: least squares, then reweighted towards the mean distance;
+#: measured on f1-f5, both stages have converged by then.
+LM_L2_STEPS, LM_L1_STEPS = 25, 15
+LBFGS_STEPS = 300
+
+
+def _scores(holdout):
+    """``(train weights, score)``: with a hold-out mask the fit uses the other points and
+    the score (which picks the iterate returned) is the hold-out points' mean distance."""
+    if holdout is None:
+        return 1.0, jnp.mean
+    return 1.0 - holdout, lambda d: jnp.sum(holdout * d) / jnp.maximum(jnp.sum(holdout), 1.0)
+
+
+def levenberg_marquardt(
+    residuals: Callable[[jax.Array, jax.Array], jax.Array],
+    search: Callable[[jax.Array], jax.Array],
+    x0: jax.Array,
+    free: jax.Array,
+    lower: jax.Array,
+    upper: jax.Array,
+    holdout: jax.Array | None = None,
+    l2_steps: int = LM_L2_STEPS,
+    l1_steps: int = LM_L1_STEPS,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Minimise the distances ``residuals(x, search(x))`` (shape (N,)) over the coordinates
+    where ``free`` is 1, keeping ``x`` inside ``[lower, upper]``.
+
+    ``search(x)`` is the non-differentiable part (where each point's foot lies), done once
+    per step, for the trial point, outside the linearisation (it dominates compile time).
+    ``holdout`` (N,) marks points left out of the fit that decide which iterate is
+    returned: early stopping, so noisy data are not chased (see :data:`HOLDOUT_EVERY`).
+
+    Returns ``(x, mean distance over all points, score)`` for the iterate with the best
+    score (``x0`` included): the hold-out mean, or without hold-out the mean itself.
+    """
+    eye = jnp.eye(x0.shape[0], dtype=x0.dtype)
+    train, score = _scores(holdout)
+
+    def body(carry, reweight):
+        x, aux, mu, best = carry
+        d, jvp = jax.linearize(lambda y: residuals(y, aux), x)
+        jac = jax.vmap(jvp, out_axes=1)(eye * free[None, :])  # (N, P); frozen columns are zero
+        floor = jnp.maximum(1e-2 * jnp.mean(d), 1e-8)
+        w = train * jnp.where(reweight, 1.0 / jnp.maximum(d, floor), 1.0)
+        a = (jac * w[:, None]).T @ jac
+        g = jac.T @ (w * d)
+        a = a + mu * (jnp.diag(jnp.diag(a)) + 1e-9 * eye) + jnp.diag(1.0 - free)
+        x_new = jnp.clip(x - jnp.linalg.solve(a, g), lower, upper)
+        aux_new = search(x_new)
+        d_new = residuals(x_new, aux_new)
+        ok = jnp.sum(w * d_new**2) < jnp.sum(w * d**2)  # NaN compares False
+        x = jnp.where(ok, x_new, x)
+        aux = jnp.where(ok, aux_new, aux)
+        mu = jnp.clip(jnp.where(ok, mu / 3.0, mu * 4.0), 1e-10, 1e10)
+        better = ok & (score(d_new) < best[2])
+        best = jax.tree_util.tree_map(
+            lambda new, old: jnp.where(better, new, old),
+            (x_new, jnp.mean(d_new), score(d_new)),
+            best,
+        )
+        return (x, aux, mu, best), None
+
+    d0 = residuals(x0, search(x0))
+    best0 = (x0, _finite(jnp.mean(d0)), _finite(score(d0)))
+    stages = jnp.arange(l2_steps + l1_steps) >= l2_steps
+    init = (x0, search(x0), jnp.asarray(1e-3, x0.dtype), best0)
+    (_, _, _, best), _ = jax.lax.scan(body, init, stages)
+    return best
+
+
+def _finite(f):
+    return jnp.where(jnp.isnan(f), jnp.inf, f)
+
+
+def lbfgs(
+    residuals: Callable[[jax.Array, jax.Array], jax.Array],
+    search: Callable[[jax.Array], jax.Array],
+    x0: jax.Array,
+    free: jax.Array,
+    lower: jax.Array,
+    upper: jax.Array,
+    holdout: jax.Array | None = None,
+    steps: int = LBFGS_STEPS,
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """optax L-BFGS on the mean distance; same contract as :func:`levenberg_marquardt`.
+
+    Frozen coordinates are held by evaluating the loss at ``where(free, x, x0)``, bounds by
+    clipping there, so their gradient is zero and L-BFGS never moves them.
+    """
+    train, score = _scores(holdout)
+
+    def project(x):
+        return jnp.clip(jnp.where(free > 0, x, x0), lower, upper)
+
+    def distances(x):
+        x = project(x)
+        return residuals(x, search(jax.lax.stop_gradient(x)))
+
+    def loss(x):
+        d = distances(x)
+        return jnp.sum(train * d) / jnp.sum(train * jnp.ones_like(d))
+
+    opt = optax.lbfgs()
+    value_and_grad = optax.value_and_grad_from_state(loss)
+
+    def body(carry, _):
+        x, state, best = carry
+        value, grad = value_and_grad(x, state=state)
+        updates, state = opt.update(grad, state, x, value=value, grad=grad, value_fn=loss)
+        x = optax.apply_updates(x, updates)
+        d = distances(x)
+        better = score(d) < best[2]
+        best = jax.tree_util.tree_map(
+            lambda new, old: jnp.where(better, new, old), (project(x), jnp.mean(d), score(d)), best
+        )
+        return (x, state, best), None
+
+    d0 = distances(x0)
+    best0 = (x0, _finite(jnp.mean(d0)), _finite(score(d0)))
+    (_, _, best), _ = jax.lax.scan(body, (x0, opt.init(x0), best0), None, length=steps)
+    return best

@@ -1,0 +1,112 @@
+"""Local refinement (swarmcurves_jax.refine) and fit(refine=...): known curves, noise."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from swarmcurves_jax import fit, normalise
+from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
+from swarmcurves_jax.fitness import SampleBasis, foot_samples, make_sample_basis, point_distances
+from swarmcurves_jax.projection import project_points
+from swarmcurves_jax.refine import lbfgs, levenberg_marquardt
+
+
+def _problem(seed=5, n=7):
+    pts, truth = random_bspline_points(n, 3, False, seed=seed)
+    basis = SampleBasis(*(jnp.asarray(a, jnp.float32) for a in make_sample_basis(n, 3, False, 64)))
+    data = jnp.asarray(pts, jnp.float32)
+    shape = truth.shape
+
+    def residuals(x, foot):
+        return point_distances(x.reshape(shape), None, basis, data, foot)
+
+    def search(x):
+        return foot_samples(x.reshape(shape), None, basis, data)
+
+    start = truth + np.random.default_rng(seed).normal(0, 0.03, shape)
+    start[[0, -1]] = truth[[0, -1]]  # pinned ends, as fit(fix_ends=True) does
+    free = np.ones(shape)
+    free[[0, -1]] = 0
+    inf = jnp.full(truth.size, jnp.inf, jnp.float32)
+    args = (jnp.asarray(start.ravel(), jnp.float32), jnp.asarray(free.ravel(), jnp.float32))
+    return residuals, search, args, -inf, inf, truth
+
+
+def test_levenberg_marquardt_recovers_a_perturbed_cubic():
+    residuals, search, (x0, free), lo, hi, truth = _problem()
+    f0 = float(jnp.mean(residuals(x0, search(x0))))
+    x, f, _ = jax.jit(lambda x0: levenberg_marquardt(residuals, search, x0, free, lo, hi))(x0)
+    assert f0 > 5e-3  # a real perturbation
+    assert float(f) <= 2e-6
+    np.testing.assert_allclose(np.asarray(x).reshape(truth.shape), truth, atol=2e-3)
+    np.testing.assert_array_equal(np.asarray(x)[[0, 1, -2, -1]], np.asarray(x0)[[0, 1, -2, -1]])
+
+
+def test_lbfgs_lowers_the_mean_distance_and_keeps_frozen_coordinates():
+    residuals, search, (x0, free), lo, hi, truth = _problem()
+    f0 = float(jnp.mean(residuals(x0, search(x0))))
+    x, f, _ = jax.jit(lambda x0: lbfgs(residuals, search, x0, free, lo, hi, steps=100))(x0)
+    assert float(f) <= f0 / 5
+    np.testing.assert_array_equal(np.asarray(x)[[0, 1, -2, -1]], np.asarray(x0)[[0, 1, -2, -1]])
+
+
+def test_refinement_beats_the_pure_swarm_on_f1_at_11_control_points():
+    pts = analytic_points("f1")
+    pure = fit(pts, cps=[8, 11], iterations=400, refine=False)
+    refined = fit(pts, cps=[8, 11], iterations=400)
+    assert refined[3, 11].error <= 5.2e-4  # issue 5's target (the paper: 5.2e-3)
+    assert refined[3, 11].error < 0.8 * pure[3, 11].error
+    for a, b in zip(pure.solutions, refined.solutions):
+        assert b.error <= a.error  # never worse: the lower true error is kept
+    assert refined[3, 11].info["refined"] is True
+    assert set(refined.timings) == {"swarm", "refine"} and set(pure.timings) == {"swarm"}
+
+
+def test_rational_refinement_keeps_weights_inside_their_bounds():
+    theta = np.linspace(0, 2 * np.pi / 3, 200)
+    result = fit(
+        np.c_[np.cos(theta), np.sin(theta)],
+        cps=3,
+        degrees=2,
+        rational=True,
+        iterations=300,
+        weight_bounds=(0.2, 5.0),
+    )
+    w = result[2, 3].weights
+    assert result[2, 3].error <= 1e-5
+    assert abs(w[1] / np.sqrt(w[0] * w[2]) - np.cos(np.pi / 3)) <= 1e-3
+
+
+def _clean_error(curve, dense_n, center, scale):
+    ctrl = (curve.control_points - center) / scale
+    return project_points(dense_n, ctrl, curve.weights, curve.knots, 3, False)[0].mean()
+
+
+def test_refinement_does_not_overfit_noise():
+    """σ = 0.04 along the normal (the paper's Fig. 7a): against the clean curve, refining
+    is no worse.  The hold-out early stopping keeps it from chasing the noise: measured on
+    27 cases (f1, f4, a random cubic; 3 seeds; 6, 8, 11 cp) the clean error ratio is 0.987
+    on average, worse in 2 (at most +9 %); without it 1.03 on average, up to +80 %."""
+    clean = analytic_points("f4")
+    clean_n, center, scale = normalise(clean)
+    dense_n = (analytic_points("f4", 5000) - center) / scale
+    ratios = []
+    for seed in range(3):
+        noisy = center + scale * normal_noise(clean_n, 0.04, seed=seed)
+        pure = fit(noisy, cps=[6, 8], iterations=600, refine=False)
+        refined = fit(noisy, cps=[6, 8], iterations=600)
+        for a, b in zip(pure.solutions, refined.solutions):
+            assert b.error <= a.error  # the data fit does improve
+            ratios.append(
+                _clean_error(b, dense_n, center, scale) / _clean_error(a, dense_n, center, scale)
+            )
+    assert np.mean(ratios) <= 1.0
+    assert max(ratios) <= 1.1
+
+
+def test_refine_rejects_unknown_methods():
+    with pytest.raises(
+        ValueError, match=r"refine must be True, False, 'lm' or 'lbfgs', got 'adam'"
+    ):
+        fit(analytic_points("f1"), cps=5, refine="adam")
