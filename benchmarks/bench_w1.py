@@ -4,9 +4,10 @@
     python benchmarks/bench_w1.py [--iterations 2000] [--repeats 3] [--refine lm]
 
 W1 is the swarm alone (``refine=False``), the workload peers are compared on; ``--refine lm``
-adds the default refinement and prints its share (``FitResult.timings``).  Prints the cold time (first call: tracing + XLA compilation + run), the warm time (a second
-call of the same shapes, which compiles nothing), peak resident memory, particle
-evaluations per second, the device and the JAX version.
+adds the default refinement and prints its share (``FitResult.timings``).  Prints the cold
+time (first call: tracing + XLA compilation + run), the warm time (a second call of the same
+shapes, which compiles nothing), peak resident memory, particle evaluations per second, the
+device and the JAX version.
 """
 
 from __future__ import annotations

@@ -232,8 +232,8 @@ def _boxes(pairs, space: _Space, weight_bounds, ends, dtype) -> pso.Box:
 
     Control points start in U[-1, 1] and are unbounded after; log-weights start in
     U[-1, 1] and stay inside log(weight_bounds); knot logits start in U[-0.1, 0.1] (near
-    uniform knots) and stay inside +-KNOT_LOGIT_BOUND.  ``ends`` ((2, D) or None) pins the first
-    and last control points of open curves to the data's end points (lower = upper).
+    uniform knots) and stay inside +-KNOT_LOGIT_BOUND.  ``ends`` ((2, D) or None) pins the
+    first and last control points of open curves to the data's end points (lower = upper).
     """
     num_ctrl, size = space.num_ctrl, space.size
     init_lo, init_hi = -np.ones(size), np.ones(size)
@@ -620,6 +620,7 @@ def fit(
                 groups=groups,
             )
         )
+        timings["refine"] = time.perf_counter() - swarm_done
         for i, options in enumerate(candidates):
             if refined[1][i] < options[0][1]:
                 options.append((refined[0][i], float(refined[1][i]), True))
@@ -639,8 +640,6 @@ def fit(
         )
         for i, (k, n) in enumerate(pairs)
     ]
-    if method is not None and stop_reason != "interrupted":
-        timings["refine"] = time.perf_counter() - swarm_done
     return FitResult(
         solutions=solutions,
         points=pts,

@@ -194,8 +194,7 @@ def nearest_sample_dense(points: jax.Array, samples: jax.Array, tangents: jax.Ar
     about ten times quicker to compile, for code that searches only a few dozen times."""
     diff = points[:, None, :] - samples[None, :, :]
     along = jnp.sum(diff * tangents[None], axis=2)
-    len2 = jnp.sum(tangents**2, axis=1)
-    len2 = len2[None, :]
+    len2 = jnp.sum(tangents**2, axis=1)[None, :]
     s = jnp.clip(along / jnp.maximum(len2, 1e-30), -1.0, 1.0)
     d2 = jnp.sum(diff**2, axis=2) - s * (2.0 * along - s * len2)
     return jnp.argmin(d2, axis=1).astype(jnp.int32)

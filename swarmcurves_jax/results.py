@@ -66,7 +66,8 @@ class FitResult:
         Seconds spent in ``fit`` (compilation included).
     timings : dict
         Seconds per stage: ``"swarm"`` (setup, compilation and the swarm) and, when the
-        solutions were refined, ``"refine"``.
+        solutions were refined, ``"refine"`` (its compilation included); the rest of
+        ``wall_time`` is the host's true-error projections.
     """
 
     solutions: list[Curve]
