@@ -87,24 +87,25 @@ def levenberg_marquardt(
         x = jnp.where(ok, x_new, x)
         aux = jnp.where(ok, aux_new, aux)
         mu = jnp.clip(jnp.where(ok, mu / 3.0, mu * 4.0), 1e-10, 1e10)
-        better = ok & (score(d_new) < best[2])
-        best = jax.tree_util.tree_map(
-            lambda new, old: jnp.where(better, new, old),
-            (x_new, jnp.mean(d_new), score(d_new)),
-            best,
-        )
+        best = _keep_better(ok, x_new, d_new, score, best)
         return (x, aux, mu, best), None
 
-    d0 = residuals(x0, search(x0))
-    best0 = (x0, _finite(jnp.mean(d0)), _finite(score(d0)))
+    aux0 = search(x0)
+    best0 = _keep_better(True, x0, residuals(x0, aux0), score, None)
     stages = jnp.arange(l2_steps + l1_steps) >= l2_steps
-    init = (x0, search(x0), jnp.asarray(1e-3, x0.dtype), best0)
+    init = (x0, aux0, jnp.asarray(1e-3, x0.dtype), best0)
     (_, _, _, best), _ = jax.lax.scan(body, init, stages)
     return best
 
 
-def _finite(f):
-    return jnp.where(jnp.isnan(f), jnp.inf, f)
+def _keep_better(ok, x, d, score, best):
+    """``best`` = ``(x, mean distance, score)``, replaced by this candidate if ``ok`` and its
+    score is lower (a NaN mean or score counts as +inf); ``best=None``: the candidate."""
+    mean, value = (jnp.where(jnp.isnan(v), jnp.inf, v) for v in (jnp.mean(d), score(d)))
+    if best is None:
+        return x, mean, value
+    better = ok & (value < best[2])
+    return tuple(jnp.where(better, a, b) for a, b in zip((x, mean, value), best, strict=True))
 
 
 def lbfgs(
@@ -143,14 +144,9 @@ def lbfgs(
         value, grad = value_and_grad(x, state=state)
         updates, state = opt.update(grad, state, x, value=value, grad=grad, value_fn=loss)
         x = optax.apply_updates(x, updates)
-        d = distances(x)
-        better = score(d) < best[2]
-        best = jax.tree_util.tree_map(
-            lambda new, old: jnp.where(better, new, old), (project(x), jnp.mean(d), score(d)), best
-        )
+        best = _keep_better(True, project(x), distances(x), score, best)
         return (x, state, best), None
 
-    d0 = distances(x0)
-    best0 = (x0, _finite(jnp.mean(d0)), _finite(score(d0)))
+    best0 = _keep_better(True, x0, distances(x0), score, None)
     (_, _, best), _ = jax.lax.scan(body, (x0, opt.init(x0), best0), None, length=steps)
     return best

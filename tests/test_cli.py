@@ -119,6 +119,8 @@ def test_help_lists_every_key():
         ({"inertia": "fast"}, "inertia: expected a finite number"),
         ({"seed": -3}, "seed: expected an integer >= 0"),
         ({"init": "random"}, "init: expected one of lsq, uniform"),
+        ({"refine": True}, "refine: expected one of lm, lbfgs, none"),
+        ({"free_knots": "no"}, "free_knots: expected true or false"),
         ({"figures": ["best", "nice"]}, "figures: expected a list from best, sparsest, all"),
         ({"exports": ["step"]}, "exports: expected a list from json, npz, dxf, svg"),
         ({"input": 5}, "input: expected a non-empty string"),

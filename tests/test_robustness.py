@@ -72,6 +72,8 @@ BAD_INPUT = [
     ("params not PSOParams", dict(params={"w": 0.7}), "params must be a PSOParams"),
     ("callback not callable", dict(callback=5), "callback must be callable or None"),
     ("unknown init", dict(init="random"), "init must be 'lsq' or 'uniform'"),
+    ("unknown refine", dict(refine="adam"), "refine must be True, False, 'lm' or 'lbfgs'"),
+    ("free_knots not a bool", dict(free_knots="yes"), "free_knots must be True or False"),
     ("integer dtype", dict(dtype=np.int32), "dtype must be float32 or float64"),
     ("chunk_size 0", dict(chunk_size=0), "chunk_size must be an integer >= 1"),
     ("num_samples 0", dict(num_samples=0), "num_samples must be an integer >= 1"),
