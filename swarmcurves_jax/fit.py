@@ -100,9 +100,14 @@ class _Space(NamedTuple):
         if not self.num_knots:
             return fixed
         spans = pair[1] if self.closed else pair[1] - pair[0]
-        reach = None if (k <= 3 and not self.rational) else 1.5
         return free_knot_basis(
-            self.knot_logits(q), spans, k, self.closed, self.num_samples, self.n_pad, reach
+            self.knot_logits(q),
+            spans,
+            k,
+            self.closed,
+            self.num_samples,
+            self.n_pad,
+            _reach(k, self.rational),
         )
 
     def split(self, q):
@@ -196,9 +201,8 @@ def _refine_program(pairs, state, boxes, bases, seeds, points, *, space, method,
         starts = jnp.concatenate(starts + ([seed[None]] if seeded else []))
         polish = local.levenberg_marquardt if method == "lm" else local.lbfgs
         holdout = (jnp.arange(points.shape[0]) % local.HOLDOUT_EVERY == 2).astype(points.dtype)
-        xs, fs, scores = jax.vmap(
-            lambda x0: polish(residuals, search, x0, free, box.lower, box.upper, holdout)
-        )(starts)
+        problem = local.Problem(residuals, search, free, box.lower, box.upper, holdout)
+        xs, fs, scores = jax.vmap(lambda x0: polish(problem, x0))(starts)
         i = jnp.argmin(jnp.where(jnp.isnan(scores), jnp.inf, scores))
         return xs[i], fs[i]
 
@@ -325,13 +329,16 @@ def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
     return out.astype(dtype)
 
 
+def _reach(k: int, rational: bool) -> float | None:
+    """How far the fitness's Newton step may roam, in sample spacings: a whole knot span
+    where the Taylor model is exact (non-rational, degree <= 3), else 1.5."""
+    return None if (k <= 3 and not rational) else 1.5
+
+
 def _stack_bases(pairs, closed, rational, num_samples, n_pad, dtype) -> SampleBasis:
-    """Newton may roam a whole knot span where the Taylor model is exact (non-rational,
-    degree <= 3), and 1.5 sample spacings otherwise."""
+    """Every swarm's precomputed sample basis (fixed knots), stacked and padded."""
     per = [
-        make_sample_basis(
-            n, k, closed, num_samples, n_pad, reach=None if (k <= 3 and not rational) else 1.5
-        )
+        make_sample_basis(n, k, closed, num_samples, n_pad, reach=_reach(k, rational))
         for k, n in pairs
     ]
     return SampleBasis(*(np.stack(parts).astype(dtype) for parts in zip(*per)))

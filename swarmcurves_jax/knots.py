@@ -170,17 +170,13 @@ def curvature_widths(points, num_spans: int, closed: bool) -> np.ndarray:
     if not total > 0:
         return np.full(num_spans, 1.0 / num_spans)
     d = np.diff(pts, axis=0) / np.maximum(seg, 1e-300)[:, None]
-    turn = np.arccos(np.clip(np.sum(d[1:] * d[:-1], axis=1), -1.0, 1.0))  # at inner vertices
+    nxt = np.roll(d, -1, axis=0) if closed else d[1:]  # vertex j joins segments j and j+1
+    half = np.sqrt(np.arccos(np.clip(np.sum(d[: len(nxt)] * nxt, axis=1), -1.0, 1.0))) / 2
+    # mass per segment: half of each end vertex's sqrt(turn), plus the length share
     if closed:
-        turn = np.append(turn, np.arccos(np.clip(d[0] @ d[-1], -1.0, 1.0)))
-    # mass per segment: half of each neighbouring vertex's sqrt(turn), plus the length share
-    vertex = np.sqrt(turn)
-    mass = np.zeros(len(seg))
-    mass[:-1] += vertex[: len(seg) - 1] / 2 if closed else vertex / 2
-    mass[1:] += vertex[: len(seg) - 1] / 2 if closed else vertex / 2
-    if closed:
-        mass[-1] += vertex[-1] / 2
-        mass[0] += vertex[-1] / 2
+        mass = half + np.roll(half, 1)
+    else:
+        mass = np.r_[half, 0.0] + np.r_[0.0, half]
     mass = mass / max(mass.sum(), 1e-300) + seg / total
     u = np.concatenate([[0.0], np.cumsum(seg)]) / total
     cum = np.concatenate([[0.0], np.cumsum(mass)]) / mass.sum()

@@ -20,13 +20,13 @@ is done).  So LM is the default.
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import optax
 
-__all__ = ["METHODS", "levenberg_marquardt", "lbfgs"]
+__all__ = ["METHODS", "Problem", "levenberg_marquardt", "lbfgs"]
 
 METHODS = ("lm", "lbfgs")
 
@@ -40,6 +40,24 @@ LM_L2_STEPS, LM_L1_STEPS = 25, 15
 LBFGS_STEPS = 300
 
 
+class Problem(NamedTuple):
+    """What a polish minimises: the distances ``residuals(x, search(x))`` (shape (N,)) over
+    the coordinates of ``x`` where ``free`` is 1, inside ``[lower, upper]``.
+
+    ``search(x)`` is the non-differentiable part (where each point's foot lies), kept out
+    of every differentiation.  ``holdout`` (N,) marks points left out of the fit that pick
+    the iterate returned: early stopping, so noisy data are not chased
+    (:data:`HOLDOUT_EVERY`).
+    """
+
+    residuals: Callable[[jax.Array, jax.Array], jax.Array]
+    search: Callable[[jax.Array], jax.Array]
+    free: jax.Array
+    lower: jax.Array
+    upper: jax.Array
+    holdout: jax.Array | None = None
+
+
 def _scores(holdout):
     """``(train weights, score)``: with a hold-out mask the fit uses the other points and
     the score (which picks the iterate returned) is the hold-out points' mean distance."""
@@ -49,27 +67,18 @@ def _scores(holdout):
 
 
 def levenberg_marquardt(
-    residuals: Callable[[jax.Array, jax.Array], jax.Array],
-    search: Callable[[jax.Array], jax.Array],
+    problem: Problem,
     x0: jax.Array,
-    free: jax.Array,
-    lower: jax.Array,
-    upper: jax.Array,
-    holdout: jax.Array | None = None,
     l2_steps: int = LM_L2_STEPS,
     l1_steps: int = LM_L1_STEPS,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Minimise the distances ``residuals(x, search(x))`` (shape (N,)) over the coordinates
-    where ``free`` is 1, keeping ``x`` inside ``[lower, upper]``.
-
-    ``search(x)`` is the non-differentiable part (where each point's foot lies), done once
-    per step, for the trial point, outside the linearisation (it dominates compile time).
-    ``holdout`` (N,) marks points left out of the fit that decide which iterate is
-    returned: early stopping, so noisy data are not chased (see :data:`HOLDOUT_EVERY`).
+    """Levenberg–Marquardt on ``problem`` from ``x0``; the search runs once per step, for
+    the trial point, outside the linearisation (it dominates compile time).
 
     Returns ``(x, mean distance over all points, score)`` for the iterate with the best
     score (``x0`` included): the hold-out mean, or without hold-out the mean itself.
     """
+    residuals, search, free, lower, upper, holdout = problem
     eye = jnp.eye(x0.shape[0], dtype=x0.dtype)
     train, score = _scores(holdout)
 
@@ -111,20 +120,14 @@ def _keep_better(ok, x, d, score, best):
 
 
 def lbfgs(
-    residuals: Callable[[jax.Array, jax.Array], jax.Array],
-    search: Callable[[jax.Array], jax.Array],
-    x0: jax.Array,
-    free: jax.Array,
-    lower: jax.Array,
-    upper: jax.Array,
-    holdout: jax.Array | None = None,
-    steps: int = LBFGS_STEPS,
+    problem: Problem, x0: jax.Array, steps: int = LBFGS_STEPS
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """optax L-BFGS on the mean distance; same contract as :func:`levenberg_marquardt`.
 
     Frozen coordinates are held by evaluating the loss at ``where(free, x, x0)``, bounds by
     clipping there, so their gradient is zero and L-BFGS never moves them.
     """
+    residuals, search, free, lower, upper, holdout = problem
     train, score = _scores(holdout)
 
     def project(x):

@@ -16,7 +16,7 @@ from swarmcurves_jax.knots import (
     knots_from_widths,
     span_widths,
 )
-from swarmcurves_jax.refine import levenberg_marquardt
+from swarmcurves_jax.refine import Problem, levenberg_marquardt
 
 
 @given(
@@ -80,7 +80,8 @@ def test_refinement_moves_knots_towards_the_true_ones():
     free = jnp.ones(18).at[jnp.array([0, 1, 12, 13])].set(0.0)
     inf = jnp.full(18, jnp.inf)
     f0 = float(jnp.mean(residuals(x0, search(x0))))
-    x, f, _ = jax.jit(lambda x0: levenberg_marquardt(residuals, search, x0, free, -inf, inf))(x0)
+    problem = Problem(residuals, search, free, -inf, inf)
+    x, f, _ = jax.jit(lambda x0: levenberg_marquardt(problem, x0))(x0)
     assert float(f) < f0 / 50  # measured: 1.4e-2 -> 1.9e-4
     first = span_widths(np.asarray(x[14:], np.float64), 4)[0]
     assert first < 0.2  # measured 0.17: the true first span is 0.1, the uniform one 0.25

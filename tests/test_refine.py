@@ -9,7 +9,7 @@ from swarmcurves_jax import fit, normalise
 from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
 from swarmcurves_jax.fitness import SampleBasis, foot_samples, make_sample_basis, point_distances
 from swarmcurves_jax.projection import project_points
-from swarmcurves_jax.refine import lbfgs, levenberg_marquardt
+from swarmcurves_jax.refine import Problem, lbfgs, levenberg_marquardt
 
 
 def _problem(seed=5, n=7):
@@ -36,7 +36,8 @@ def _problem(seed=5, n=7):
 def test_levenberg_marquardt_recovers_a_perturbed_cubic():
     residuals, search, (x0, free), lo, hi, truth = _problem()
     f0 = float(jnp.mean(residuals(x0, search(x0))))
-    x, f, _ = jax.jit(lambda x0: levenberg_marquardt(residuals, search, x0, free, lo, hi))(x0)
+    problem = Problem(residuals, search, free, lo, hi)
+    x, f, _ = jax.jit(lambda x0: levenberg_marquardt(problem, x0))(x0)
     assert f0 > 5e-3  # a real perturbation
     assert float(f) <= 2e-6
     np.testing.assert_allclose(np.asarray(x).reshape(truth.shape), truth, atol=2e-3)
@@ -46,7 +47,8 @@ def test_levenberg_marquardt_recovers_a_perturbed_cubic():
 def test_lbfgs_lowers_the_mean_distance_and_keeps_frozen_coordinates():
     residuals, search, (x0, free), lo, hi, truth = _problem()
     f0 = float(jnp.mean(residuals(x0, search(x0))))
-    x, f, _ = jax.jit(lambda x0: lbfgs(residuals, search, x0, free, lo, hi, steps=100))(x0)
+    problem = Problem(residuals, search, free, lo, hi)
+    x, f, _ = jax.jit(lambda x0: lbfgs(problem, x0, steps=100))(x0)
     assert float(f) <= f0 / 5
     np.testing.assert_array_equal(np.asarray(x)[[0, 1, -2, -1]], np.asarray(x0)[[0, 1, -2, -1]])
 
