@@ -134,13 +134,6 @@ def curve_samples(ctrl: jax.Array, weights: jax.Array | None, basis: SampleBasis
     return c0, c1, c2, c3
 
 
-def _segment_d2(d2, along, len2, inv_len2):
-    """Squared distance to the tangent segment ``|s| <= 1`` from the squared distance
-    ``d2`` to its sample and ``along``, the offset's dot product with the tangent."""
-    s = jnp.clip(along * inv_len2, -1.0, 1.0)
-    return d2 - s * (2.0 * along - s * len2)
-
-
 _BLOCK = 128  # samples per unrolled block: larger fusions stop fusing on XLA:CPU
 
 
@@ -170,9 +163,10 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
             diff = [points[:, i] - block[m, i] for i in range(dim)]
             d2 = sum(x * x for x in diff)
             along = sum(diff[i] * tang[m, i] for i in range(dim))
+            s = jnp.clip(along * inv[m], -1.0, 1.0)
             # Floor at a normal float: a tagged 0 would be a denormal, flushed to 0 by
             # XLA:CPU, and its index lost.
-            d2 = jnp.maximum(_segment_d2(d2, along, sq[m], inv[m]), 1e-30).astype(jnp.float32)
+            d2 = jnp.maximum(d2 - s * (2.0 * along - s * sq[m]), 1e-30).astype(jnp.float32)
             tagged = (jax.lax.bitcast_convert_type(d2, jnp.int32) & ~low) | (first + m)
             tagged = jax.lax.bitcast_convert_type(tagged, jnp.float32)
             acc = tagged if acc is None else jnp.minimum(acc, tagged)
@@ -201,7 +195,8 @@ def nearest_sample_dense(points: jax.Array, samples: jax.Array, tangents: jax.Ar
     diff = points[:, None, :] - samples[None, :, :]
     along = jnp.sum(diff * tangents[None], axis=2)
     len2 = jnp.sum(tangents**2, axis=1)[None, :]
-    d2 = _segment_d2(jnp.sum(diff**2, axis=2), along, len2, 1.0 / jnp.maximum(len2, 1e-30))
+    s = jnp.clip(along / jnp.maximum(len2, 1e-30), -1.0, 1.0)
+    d2 = jnp.sum(diff**2, axis=2) - s * (2.0 * along - s * len2)
     return jnp.argmin(d2, axis=1).astype(jnp.int32)
 
 
