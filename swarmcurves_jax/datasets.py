@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 
 from .basis import design_matrix
@@ -12,6 +15,11 @@ __all__ = [
     "analytic_points",
     "random_bspline_points",
     "normal_noise",
+    "remove_points",
+    "circular_arc_points",
+    "butterfly_nurbs",
+    "outlines_path",
+    "read_outlines",
     "builtin",
     "BUILTIN_NAMES",
 ]
@@ -69,6 +77,105 @@ def normal_noise(points, sigma: float, seed: int = 0, closed: bool = False) -> n
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     offsets = np.random.default_rng(seed).normal(0.0, sigma, len(points))
     return points + offsets[:, None] * normal
+
+
+def remove_points(points, fraction: float, seed: int = 0, closed: bool = False) -> np.ndarray:
+    """``points`` with ``round(fraction * N)`` of them removed at random, order kept: the
+    sparse data of the paper's Fig. 7.  An open curve keeps both end points, so the data
+    still span the whole curve."""
+    points = np.asarray(points, dtype=np.float64)
+    if not 0.0 <= fraction < 1.0:
+        raise ValueError(f"fraction must be in [0, 1), got {fraction!r}")
+    n = len(points)
+    keep = n - int(round(fraction * n))
+    inner = np.arange(n) if closed else np.arange(1, n - 1)
+    fixed = np.array([], dtype=int) if closed else np.array([0, n - 1])
+    if keep < len(fixed) + 1:
+        raise ValueError(f"fraction {fraction!r} would leave fewer than 3 of {n} points")
+    rng = np.random.default_rng(seed)
+    chosen = rng.choice(inner, size=keep - len(fixed), replace=False)
+    return points[np.sort(np.concatenate([fixed, chosen]))]
+
+
+def circular_arc_points(theta: float, num_points: int = 200) -> np.ndarray:
+    """``num_points`` points of a unit-circle arc of angle ``theta`` (radians, < 2π),
+    evenly spaced in angle and symmetric about the y axis (the paper's Fig. 5).  Its exact
+    rational quadratic has middle weight ``cos(theta / 2)``."""
+    if not 0.0 < theta < 2 * np.pi:
+        raise ValueError(f"theta must be in (0, 2π), got {theta!r}")
+    a = np.linspace(np.pi / 2 + theta / 2, np.pi / 2 - theta / 2, num_points)
+    return np.c_[np.cos(a), np.sin(a)]
+
+
+#: Right wing of the butterfly stand-in, from the top notch to the bottom one; the left wing
+#: mirrors it.  Weights > 1 pull the wing tips out and the notches in.
+_WING = np.array(
+    [
+        (0.0, 0.15, 3.0),
+        (0.4, 1.0, 1.0),
+        (1.25, 1.2, 2.0),
+        (1.4, 0.4, 1.0),
+        (0.3, 0.0, 2.5),
+        (1.05, -0.5, 1.0),
+        (0.95, -1.1, 1.6),
+        (0.3, -0.85, 1.0),
+        (0.0, -0.3, 2.0),
+    ]
+)
+
+
+def butterfly_nurbs():
+    """A closed butterfly-shaped cubic NURBS (16 control points, uniform periodic knots).
+
+    A **stand-in** for the paper's "Butterfly" (Fig. 4), whose coordinates are not
+    published: two mirrored wings with rounded tips, pinched at the body by two notches.
+    """
+    from .curves import Curve
+
+    left = _WING[-2:0:-1] * np.array([-1.0, 1.0, 1.0])
+    rows = np.vstack([_WING, left])
+    return Curve(
+        3, rows[:, :2], rows[:, 2], make_knots(len(rows), 3, True), closed=True, rational=True
+    )
+
+
+def outlines_path(data_dir=None) -> Path:
+    """Where the benchmark outlines are: ``data_dir/outlines/outlines.npz``, with
+    ``data_dir`` defaulting to ``$SWARMCURVES_DATA``, else the first ``shared/data`` found
+    beside the working folder or beside this repository (SPEC §4; the data are read at run
+    time, never copied).  Raises ``FileNotFoundError`` naming the folders tried."""
+    if data_dir is not None or os.environ.get("SWARMCURVES_DATA"):
+        roots = [Path(data_dir if data_dir is not None else os.environ["SWARMCURVES_DATA"])]
+    else:
+        roots = [
+            Path("..") / "shared" / "data",
+            Path(__file__).resolve().parents[2] / "shared" / "data",
+        ]
+    for root in roots:
+        if (root / "outlines" / "outlines.npz").is_file():
+            return root / "outlines" / "outlines.npz"
+    tried = ", ".join(f"'{r}'" for r in roots)
+    raise FileNotFoundError(f"data_dir: no outlines/outlines.npz under {tried}")
+
+
+def read_outlines(data_dir=None) -> dict[str, dict[str, np.ndarray]]:
+    """The benchmark outlines by name: ``{"points": (200, 2), "truth": (5000, 2) dense
+    samples of the exact curve (``None`` if the file has none), "closed": bool}`` (see
+    :func:`outlines_path`)."""
+    with np.load(outlines_path(data_dir)) as npz:
+        names = sorted(k[: -len("_closed")] for k in npz.files if k.endswith("_closed"))
+        return {
+            name: {
+                "points": np.asarray(npz[f"{name}_points"], dtype=np.float64),
+                "truth": (
+                    np.asarray(npz[f"{name}_truth"], dtype=np.float64)
+                    if f"{name}_truth" in npz.files
+                    else None
+                ),
+                "closed": bool(npz[f"{name}_closed"]),
+            }
+            for name in names
+        }
 
 
 BUILTIN_NAMES = (*ANALYTIC, "random_open", "random_closed")

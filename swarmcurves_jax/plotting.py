@@ -15,6 +15,7 @@ __all__ = [
     "plot_control_polygon",
     "plot_solution",
     "plot_error_vs_cps",
+    "plot_result",
 ]
 
 
@@ -90,16 +91,50 @@ def plot_solution(curve: Curve, points=None, true_control_points=None, fig=None)
     return fig
 
 
-def plot_error_vs_cps(result: FitResult, ax=None, metric: str = "error"):
-    """Error (log scale) against the control-point count, one line per degree."""
+def plot_error_vs_cps(
+    result: FitResult, ax=None, metric: str = "error", highlight: Curve | None = None
+):
+    """Error (log scale) against the control-point count, one line per degree; the
+    ``highlight`` solution (e.g. the one drawn beside it) is ringed."""
     ax = _axes(ax)
     for k in sorted({c.degree for c in result.solutions}):
         cs = sorted((c for c in result.solutions if c.degree == k), key=lambda c: c.n_ctrl)
         ax.semilogy(
             [c.n_ctrl for c in cs], [getattr(c, metric) for c in cs], "o-", label=f"degree {k}"
         )
+    if highlight is not None:
+        ax.semilogy(
+            [highlight.n_ctrl], [getattr(highlight, metric)], "o", ms=12, mfc="none", mec="k"
+        )
     ax.set_xlabel("control points")
     ax.set_ylabel(f"{metric} (normalised frame)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     return ax
+
+
+def plot_result(
+    result: FitResult,
+    curve: Curve | None = None,
+    true_control_points=None,
+    fig=None,
+    title: str | None = None,
+):
+    """One figure per fit, in the paper's style: the data and ``curve`` (default: the best
+    solution) coloured by its distance to the data, the fitted control polygon below it
+    beside the true one where known, and the error against the control-point count of
+    every degree on the right.  Returns the Figure."""
+    import matplotlib.pyplot as plt
+
+    curve = result.best if curve is None else curve
+    fig = fig if fig is not None else plt.figure(figsize=(11, 8))
+    grid = fig.add_gridspec(2, 2, width_ratios=(1.3, 1))
+    plot_curve(curve, result.points, ax=fig.add_subplot(grid[0, 0]))
+    plot_control_polygon(
+        curve, ax=fig.add_subplot(grid[1, 0]), true_control_points=true_control_points
+    )
+    plot_error_vs_cps(result, ax=fig.add_subplot(grid[:, 1]), highlight=curve)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import difflib
-import os
 import signal
 import sys
 from pathlib import Path
@@ -225,7 +224,7 @@ def read_points(path: Path) -> np.ndarray:
 
 def load_input(cfg) -> tuple[np.ndarray, bool, str]:
     """``(points, closed, label)`` for the config's ``input``."""
-    from .datasets import BUILTIN_NAMES, builtin
+    from .datasets import BUILTIN_NAMES, builtin, outlines_path, read_outlines
 
     name = cfg["input"]
     if name in BUILTIN_NAMES:
@@ -233,19 +232,16 @@ def load_input(cfg) -> tuple[np.ndarray, bool, str]:
         return pts, closed, name
     if name.startswith("outline:"):
         curve = name.split(":", 1)[1]
-        root = Path(cfg["data_dir"] or os.environ.get("SWARMCURVES_DATA") or "../shared/data")
-        path = root / "outlines" / "outlines.npz"
-        if not path.is_file():
-            raise ConfigError(f"data_dir: no outlines/outlines.npz under '{root}'")
-        with np.load(path) as npz:
-            if f"{curve}_points" not in npz:
-                names = sorted(
-                    k[: -len("_points")]
-                    for k in npz
-                    if k.endswith("_points") and not k.endswith("_random_points")
-                )
-                raise ConfigError(f"input: no outline '{curve}' in {path}; have {', '.join(names)}")
-            return npz[f"{curve}_points"], bool(npz[f"{curve}_closed"]), name
+        try:
+            outlines = read_outlines(cfg["data_dir"])
+        except FileNotFoundError as err:
+            raise ConfigError(str(err)) from None
+        if curve not in outlines:
+            raise ConfigError(
+                f"input: no outline '{curve}' in {outlines_path(cfg['data_dir'])}; "
+                f"have {', '.join(outlines)}"
+            )
+        return outlines[curve]["points"], outlines[curve]["closed"], name
     return read_points(Path(name)), False, name
 
 

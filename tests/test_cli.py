@@ -201,9 +201,12 @@ def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig
         stderr=subprocess.PIPE,
         text=True,
     )
-    time.sleep(12)  # compile and run a few chunks
-    proc.send_signal(sig)
-    out, err = proc.communicate(timeout=120)
+    try:
+        time.sleep(12)  # compile and run a few chunks
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()  # never leave a 200,000-iteration run behind when the test fails
     assert proc.returncode == 0, err
     assert "stopped on an interrupt (best solutions so far)" in out
     curves = read_solutions(tmp_path / "o" / "solutions.json")

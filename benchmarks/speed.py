@@ -1,0 +1,529 @@
+"""Speed of the swarm (SPEC §5): W1 against peers in the same run, scaling curves, roofline.
+
+    python benchmarks/speed.py [--quick] [--out DIR] [--skip peers,scaling,memory,roofline]
+
+What it measures, all with ``refine=False`` (the swarm alone, the workload peers share):
+
+- **W1** (f4, N = 200, degrees 1-3, cps 4-10: 21 swarms x 64 particles x 2000 iterations,
+  float32): cold (first call, compilation included) and warm (min of 3) seconds, particle
+  evaluations per second; and **W1-wide**: degrees {1, 2, 3, 5}, cps 4-16 (50 swarms).
+- **Peers on the same fitness and swarm settings** (ψ, φ_l, φ_g, v_max, 64 particles, the
+  same 21 (degree, n) swarms, the same normalised f4 points and sample bases):
+  a straightforward NumPy PSO with the same fitness written in NumPy (vectorised over
+  particles, one swarm at a time); pyswarms ``GlobalBestPSO`` with that NumPy fitness, one run
+  per swarm; evosax's ``PSO`` with our JAX fitness, vmapped over the 21 swarms and scanned,
+  jit-compiled.  NumPy and pyswarms run ``--peer-iterations`` (default 50) iterations and
+  are scaled linearly to 2000 (their cost per iteration is constant), which the table says.
+  evosax runs the full 2000.  Ratios are peer time / ours (warm).
+- **Scaling** (warm seconds, min of 2, at ``--scale-iterations`` = 200 iterations, scaled to
+  2000): against N (100 ... 5,000 points, every point in the fitness), particles (16 ... 512),
+  swarms (1 ... 64; degree 1-4 pairs with n <= 25 and 128 samples, so every swarm costs the
+  same) and iterations (W1 at 100 ... 2000); the cold compile time against the swarms.
+- **Memory**: peak RSS of W1 and of a 100,000-point fit, each in a fresh process.
+- **Roofline**: the fitness's FLOPs per particle-evaluation counted from its shapes, the
+  achieved FLOP/s on W1, and this CPU's float32 peak measured by a 4096² matmul.
+
+Writes report.md (also printed), report.json and scaling.png / roofline.png into ``--out``
+(default ``benchmarks/results/speed``).  ``--quick`` shrinks everything for a smoke test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from swarmcurves_jax import fit
+from swarmcurves_jax.datasets import analytic_points
+from swarmcurves_jax.fit import _reach, default_num_samples, normalise
+from swarmcurves_jax.fitness import make_sample_basis, point_distances
+from swarmcurves_jax.pso import default_params
+
+REPO = Path(__file__).resolve().parents[1]
+W1 = dict(cps=range(4, 11), degrees=(1, 2, 3), particles=64, refine=False, seed=0)
+W1_PAIRS = [(k, n) for k in (1, 2, 3) for n in range(4, 11)]
+FULL_ITERATIONS = 2000
+
+
+def timed(fn, repeats=1):
+    """(first call's seconds, min of ``repeats`` later calls' seconds, last result)."""
+    t0 = time.perf_counter()
+    out = fn()
+    cold = time.perf_counter() - t0
+    warm = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        warm.append(time.perf_counter() - t0)
+    return cold, min(warm) if warm else math.nan, out
+
+
+# --------------------------------------------------------------------------- the fitness
+def w1_problem(dtype=np.float32):
+    """The normalised f4 points and, per W1 swarm, its sample basis (padded to n = 10)."""
+    pts = normalise(analytic_points("f4"))[0].astype(dtype)
+    samples = default_num_samples(W1_PAIRS, False)
+    bases = [make_sample_basis(n, k, False, samples, 10, _reach(k, False)) for k, n in W1_PAIRS]
+    return pts, [tuple(np.asarray(a, dtype) for a in b) for b in bases]
+
+
+def numpy_fitness(positions, basis, points, newton_steps=3):
+    """Our fitness (fitness.point_distances: nearest tangent-segment sample, then Newton on
+    the cubic Taylor model inside the sample's span), vectorised over particles in NumPy."""
+    b0, b1, b2, b3, lo_s, hi_s, half = basis
+    num, dim = positions.shape[0], points.shape[1]
+    ctrl = positions.reshape(num, -1, dim)
+    c0, c1, c2, c3 = (np.einsum("mn,pnd->pmd", b, ctrl) for b in (b0, b1, b2, b3))
+    tang = c1 * half[None, :, None]
+    diff = points[None, :, None, :] - c0[:, None, :, :]  # (P, N, M, D)
+    along = np.einsum("pnmd,pmd->pnm", diff, tang)
+    len2 = np.maximum(np.sum(tang**2, axis=2), 1e-30)[:, None, :]
+    s = np.clip(along / len2, -1.0, 1.0)
+    d2 = np.sum(diff**2, axis=3) - s * (2.0 * along - s * len2)
+    j = np.argmin(d2, axis=2)  # (P, N)
+    take = lambda c: np.take_along_axis(c, j[..., None], axis=1)  # noqa: E731
+    r = take(c0) - points[None]
+    d1, d2_, d3 = take(c1), take(c2), take(c3)
+    lo, hi = lo_s[j], hi_s[j]
+    delta = np.zeros_like(lo)
+    for _ in range(newton_steps):
+        dl = delta[..., None]
+        q = r + dl * (d1 + dl * (d2_ / 2 + dl * d3 / 6))
+        dq = d1 + dl * (d2_ + dl * d3 / 2)
+        ddq = d2_ + dl * d3
+        g = np.sum(q * dq, axis=2)
+        h = np.sum(dq * dq + q * ddq, axis=2)
+        to_bound = np.where(g > 0, lo, hi) - delta
+        step = np.where(h > 0, -g / np.where(h > 0, h, 1.0), to_bound)
+        delta = np.clip(delta + step, lo, hi)
+    dl = delta[..., None]
+    q = r + dl * (d1 + dl * (d2_ / 2 + dl * d3 / 6))
+    dist = np.sqrt(np.minimum(np.sum(q * q, axis=2), np.sum(r * r, axis=2)) + 1e-30)
+    return dist.mean(axis=1)
+
+
+def numpy_pso(basis, points, dim, iterations, particles=64, seed=0):
+    """The paper's PSO update (SPEC §1) with our defaults, in plain NumPy."""
+    p = default_params()
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1, 1, (particles, dim)).astype(np.float32)
+    v = np.zeros_like(q)
+    f = numpy_fitness(q, basis, points)
+    pbest, pbest_f = q.copy(), f.copy()
+    for _ in range(iterations):
+        g = pbest[np.argmin(pbest_f)]
+        r1, r2 = rng.random((2, particles, dim), dtype=np.float32)
+        v = p.inertia * v + p.cognitive * r1 * (pbest - q) + p.social * r2 * (g - q)
+        v = np.clip(v, -p.v_max, p.v_max)
+        q = q + v
+        f = numpy_fitness(q, basis, points)
+        better = f < pbest_f
+        pbest[better], pbest_f[better] = q[better], f[better]
+    return float(pbest_f.min())
+
+
+def pyswarms_run(basis, points, dim, iterations, particles=64, seed=0):
+    import pyswarms as ps
+
+    p = default_params()
+    rng = np.random.default_rng(seed)
+    opt = ps.single.GlobalBestPSO(
+        n_particles=particles,
+        dimensions=dim,
+        options={"c1": p.cognitive, "c2": p.social, "w": p.inertia},
+        velocity_clamp=(-p.v_max, p.v_max),
+        init_pos=rng.uniform(-1, 1, (particles, dim)),
+    )
+    cost, _ = opt.optimize(
+        lambda x: numpy_fitness(x.astype(np.float32), basis, points),
+        iters=iterations,
+        verbose=False,
+    )
+    return float(cost)
+
+
+def evosax_program(iterations, particles=64):
+    """evosax PSO on our JAX fitness, vmapped over swarms, one jit-compiled scan."""
+    from evosax.algorithms import PSO
+
+    p = default_params()
+    dim = 10 * 2
+    es = PSO(population_size=particles, solution=jnp.zeros(dim, jnp.float32))
+    params = es.default_params.replace(
+        inertia_coeff=p.inertia, cognitive_coeff=p.cognitive, social_coeff=p.social
+    )
+
+    def fitness(pop, basis, points):
+        def one(q):
+            return jnp.mean(point_distances(q.reshape(10, 2), None, basis, points))
+
+        return jax.vmap(one)(pop)
+
+    def one_swarm(key, basis, points):
+        k0, k1, k2 = jax.random.split(key, 3)
+        pop = jax.random.uniform(k0, (particles, dim), jnp.float32, -1.0, 1.0)
+        state = es.init(k1, pop, fitness(pop, basis, points), params)
+
+        def step(state, key):
+            ka, kt = jax.random.split(key)
+            pop, state = es.ask(ka, state, params)
+            state, _ = es.tell(kt, pop, fitness(pop, basis, points), state, params)
+            return state, None
+
+        state, _ = jax.lax.scan(step, state, jax.random.split(k2, iterations))
+        return state.best_fitness
+
+    return jax.jit(jax.vmap(one_swarm, in_axes=(0, 0, None)))
+
+
+# --------------------------------------------------------------------------- sections
+def section_w1(args, report):
+    pts = analytic_points("f4")
+    it = args.iterations
+    cold, warm, res = timed(lambda: fit(pts, iterations=it, **W1), args.repeats)
+    evals = 21 * 64 * it
+    report["w1"] = {
+        "iterations": it,
+        "cold_s": cold,
+        "warm_s": warm,
+        "evals_per_s": evals / warm,
+        "best_cubic": min(c.error for c in res.solutions if c.degree == 3),
+    }
+    # fit refuses n < degree + 1, so degree 5 (n >= 6) is its own call: two programs
+    low = dict(W1, cps=range(4, 17), degrees=(1, 2, 3))
+    high = dict(W1, cps=range(6, 17), degrees=5)
+
+    def wide():
+        return fit(pts, iterations=it, **low).solutions + fit(pts, iterations=it, **high).solutions
+
+    cold_w, warm_w, sols = timed(wide, 1)
+    report["w1_wide"] = {"swarms": len(sols), "cold_s": cold_w, "warm_s": warm_w}
+    print(
+        f"W1 cold {cold:.2f} s, warm {warm:.2f} s; wide cold {cold_w:.2f} warm {warm_w:.2f}",
+        file=sys.stderr,
+    )
+
+
+def section_peers(args, report):
+    pts, bases = w1_problem()
+    it_full, it_peer = args.iterations, args.peer_iterations
+    rows = {}
+    t0 = time.perf_counter()
+    for (k, n), b in zip(W1_PAIRS, _cut(bases)):
+        numpy_pso(b, pts, n * 2, it_peer)
+    rows["NumPy (same fitness)"] = (time.perf_counter() - t0) * it_full / it_peer, True
+    try:
+        import pyswarms  # noqa: F401
+
+        t0 = time.perf_counter()
+        for (k, n), b in zip(W1_PAIRS, _cut(bases)):
+            pyswarms_run(b, pts, n * 2, it_peer)
+        rows["pyswarms GlobalBestPSO"] = (time.perf_counter() - t0) * it_full / it_peer, True
+    except ImportError:
+        rows["pyswarms GlobalBestPSO"] = (math.nan, True)
+    try:
+        program = evosax_program(it_full)
+        keys = jax.random.split(jax.random.key(0), len(W1_PAIRS))
+        stacked = tuple(jnp.stack([jnp.asarray(b[i]) for b in bases]) for i in range(7))
+        from swarmcurves_jax.fitness import SampleBasis
+
+        basis = SampleBasis(*stacked)
+        data = jnp.asarray(pts)
+        cold, warm, best = timed(
+            lambda: jax.block_until_ready(program(keys, basis, data)), args.repeats
+        )
+        rows["evosax PSO (vmapped, our fitness)"] = warm, False
+        report["evosax_cold_s"] = cold
+        report["evosax_best_cubic_fitness"] = float(np.min(np.asarray(best)[14:]))
+    except ImportError:
+        rows["evosax PSO (vmapped, our fitness)"] = (math.nan, False)
+    ours = report["w1"]["warm_s"]
+    report["peers"] = {
+        name: {"seconds": s, "scaled_from": it_peer if scaled else it_full, "ratio": s / ours}
+        for name, (s, scaled) in rows.items()
+    }
+    for name, r in report["peers"].items():
+        print(f"{name}: {r['seconds']:.1f} s, {r['ratio']:.1f}x ours", file=sys.stderr)
+
+
+def _cut(bases):
+    """The bases without their padding columns (peers see only live coordinates)."""
+    out = []
+    for (k, n), b in zip(W1_PAIRS, bases):
+        out.append(tuple(a[:, :n] if a.ndim == 2 else a for a in b))
+    return out
+
+
+def section_scaling(args, report):
+    it = args.scale_iterations
+    scale = FULL_ITERATIONS / it
+    pts_f4 = analytic_points("f4")
+
+    def warm_time(points, **kw):
+        """(compile seconds, marginal seconds per 2000 iterations): the swarm stage timed
+        warm at ``it`` and ``2 it`` iterations, so per-call costs (seeds, bases, the host's
+        error projections) do not pollute the slope; compile = first call - warm call."""
+        kwargs = {**W1, **kw}
+        cold = fit(points, iterations=it, **kwargs).timings["swarm"]
+        once = min(fit(points, iterations=it, **kwargs).timings["swarm"] for _ in range(2))
+        twice = min(fit(points, iterations=2 * it, **kwargs).timings["swarm"] for _ in range(2))
+        return cold - once, (twice - once) * scale
+
+    out = {"iterations_used": it, "N": [], "particles": [], "swarms": [], "iterations": []}
+    for n_pts in args.sizes:
+        x = np.linspace(-2, 2, n_pts)
+        pts = np.c_[x, 0.5 * np.sin(x) + np.exp(-30 * x**2)]
+        cold, warm = warm_time(pts, max_fitness_points=n_pts)
+        out["N"].append({"x": n_pts, "warm_s": warm, "compile_s": cold})
+    for p in args.particle_counts:
+        cold, warm = warm_time(pts_f4, particles=p)
+        out["particles"].append({"x": p, "warm_s": warm, "compile_s": cold})
+    for s in args.swarm_counts:
+        cps, degrees = _swarm_layout(s)
+        cold, warm = warm_time(pts_f4, cps=cps, degrees=degrees, num_samples=128)
+        out["swarms"].append({"x": s, "warm_s": warm, "compile_s": cold})
+    for n_it in args.iteration_counts:
+        cold, warm, _ = timed(lambda: fit(pts_f4, **{**W1, "iterations": n_it}), 1)
+        out["iterations"].append({"x": n_it, "warm_s": warm})
+    report["scaling"] = out
+    for key in ("N", "particles", "swarms", "iterations"):
+        pairs = ", ".join(f"{r['x']}: {r['warm_s']:.2f}" for r in out[key])
+        print(f"scaling {key}: {pairs}", file=sys.stderr)
+
+
+def _swarm_layout(s):
+    """``s`` swarms of equal cost: (cps, degrees) with n <= 25 and always n = 25 present."""
+    if s <= 16:
+        return range(26 - s, 26), (3,)
+    per = s // 4 if s >= 64 else s // 2
+    degrees = (1, 2, 3, 4) if s >= 64 else (2, 3)
+    return range(26 - per, 26), degrees
+
+
+MEMORY_SNIPPET = """
+import resource, sys, numpy as np
+from swarmcurves_jax import fit
+from swarmcurves_jax.datasets import analytic_points
+n = int(sys.argv[1]); it = int(sys.argv[2])
+if n == 200:
+    pts = analytic_points("f4")
+else:
+    x = np.linspace(-2, 2, n); pts = np.c_[x, 0.5 * np.sin(x) + np.exp(-30 * x**2)]
+fit(pts, cps=range(4, 11), degrees=(1, 2, 3), refine=False, iterations=it)
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+"""
+
+
+def section_memory(args, report):
+    out = {}
+    for n in (200, 100_000):
+        proc = subprocess.run(
+            [sys.executable, "-c", MEMORY_SNIPPET, str(n), str(args.memory_iterations)],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        out[str(n)] = float(proc.stdout.strip().splitlines()[-1])
+    report["peak_rss_mib"] = out
+    print(f"peak RSS MiB: {out}", file=sys.stderr)
+
+
+def fitness_flops(n_pts, samples, n_pad, dim, particles, swarms, newton=3):
+    """FLOPs of one iteration of every swarm, counted from the fitness's shapes."""
+    matmuls = 4 * 2 * samples * n_pad * dim  # four basis matrices times the control points
+    search = n_pts * samples * (5 * dim + 7)  # diff, d2, along, clip, correction, min
+    newton_flops = n_pts * newton * (24 * dim + 10)  # Taylor model, gradient, Hessian, step
+    final = n_pts * (12 * dim + 4)
+    update = 12 * n_pad * dim  # the PSO update
+    per_eval = matmuls + search + newton_flops + final + update
+    return per_eval, per_eval * particles * swarms
+
+
+def section_roofline(args, report):
+    size = 4096
+    a = jax.random.normal(jax.random.key(0), (size, size), jnp.float32)
+    mm = jax.jit(lambda x: x @ x)
+    jax.block_until_ready(mm(a))
+    best = min(_time_once(lambda: jax.block_until_ready(mm(a))) for _ in range(3))
+    peak = 2 * size**3 / best
+    samples = default_num_samples(W1_PAIRS, False)
+    per_eval, per_iter = fitness_flops(200, samples, 10, 2, 64, 21)
+    warm = report["w1"]["warm_s"]
+    achieved = per_iter * report["w1"]["iterations"] / warm
+    report["roofline"] = {
+        "matmul_peak_flops": peak,
+        "flops_per_eval": per_eval,
+        "flops_per_iteration": per_iter,
+        "achieved_flops": achieved,
+        "fraction_of_peak": achieved / peak,
+        "samples": samples,
+    }
+    print(f"roofline: {achieved / 1e9:.1f} GFLOP/s of {peak / 1e9:.1f} peak", file=sys.stderr)
+
+
+def _time_once(fn):
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+# --------------------------------------------------------------------------- report
+def figures(report, out: Path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sc = report.get("scaling")
+    if sc:
+        fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
+        labels = {
+            "N": "points N",
+            "particles": "particles",
+            "swarms": "swarms",
+            "iterations": "iterations",
+        }
+        for ax, key in zip(axes, labels):
+            xs = [r["x"] for r in sc[key]]
+            ys = [r["warm_s"] for r in sc[key]]
+            ax.loglog(xs, ys, "o-", label="warm")
+            ax.loglog(xs, [ys[0] * x / xs[0] for x in xs], ":", color="0.5", label="linear")
+            if key == "swarms":
+                ax.loglog(xs, [r["compile_s"] for r in sc[key]], "s--", label="compile")
+            ax.set_xlabel(labels[key])
+            ax.set_ylabel("seconds (2000 iterations)" if key != "iterations" else "seconds")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(fontsize="small")
+        fig.tight_layout()
+        fig.savefig(out / "scaling.png", dpi=90)
+        plt.close(fig)
+    rf = report.get("roofline")
+    if rf:
+        fig, ax = plt.subplots(figsize=(5.5, 4))
+        ax.bar(
+            ["matmul peak", "W1 fitness"],
+            [rf["matmul_peak_flops"] / 1e9, rf["achieved_flops"] / 1e9],
+            color=["0.6", "C0"],
+        )
+        ax.set_ylabel("GFLOP/s (float32)")
+        ax.set_title(f"W1 runs at {100 * rf['fraction_of_peak']:.0f} % of the matmul peak")
+        fig.tight_layout()
+        fig.savefig(out / "roofline.png", dpi=90)
+        plt.close(fig)
+
+
+def markdown(report) -> str:
+    w1 = report["w1"]
+    lines = [
+        "# Swarm speed",
+        "",
+        f"`python benchmarks/speed.py` on {report['machine']}.",
+        "",
+        "| W1 (21 swarms x 64 particles x 2000 iterations, N = 200) | |",
+        "|---|---|",
+        f"| warm (min of {report['repeats']}) | {w1['warm_s']:.2f} s |",
+        f"| cold (with compilation) | {w1['cold_s']:.2f} s |",
+        f"| particle-evaluations / s | {w1['evals_per_s']:.3g} |",
+        f"| best cubic error | {w1['best_cubic']:.2e} |",
+    ]
+    if "w1_wide" in report:
+        ww = report["w1_wide"]
+        lines.append(
+            f"| W1-wide (degrees 1, 2, 3 with cps 4-16 and 5 with 6-16: {ww['swarms']} "
+            f"swarms, two calls) | warm "
+            f"{ww['warm_s']:.2f} s, cold {ww['cold_s']:.2f} s |"
+        )
+    if "peak_rss_mib" in report:
+        m = report["peak_rss_mib"]
+        lines.append(f"| peak RSS, W1 (fresh process) | {m['200']:.0f} MiB |")
+        lines.append(f"| peak RSS, N = 100,000 (fresh process) | {m['100000']:.0f} MiB |")
+    if "peers" in report:
+        lines += [
+            "",
+            "| W1, same fitness and settings | seconds | peer / ours | note |",
+            "|---|---:|---:|---|",
+            f"| **ours** (`fit`, refine=False) | {w1['warm_s']:.2f} | 1 | warm |",
+        ]
+        for name, r in report["peers"].items():
+            note = (
+                f"{r['scaled_from']} iterations timed, scaled to 2000"
+                if r["scaled_from"] != w1["iterations"]
+                else "warm, full run"
+            )
+            lines.append(f"| {name} | {r['seconds']:.1f} | {r['ratio']:.1f}x | {note} |")
+    if "scaling" in report:
+        sc = report["scaling"]
+        lines += [
+            "",
+            f"Scaling (warm, timed at {sc['iterations_used']} iterations, scaled "
+            "to 2000; swarms: equal-cost swarms, 128 samples):",
+            "",
+        ]
+        for key in ("N", "particles", "swarms", "iterations"):
+            cells = ", ".join(f"{r['x']}: {r['warm_s']:.2f} s" for r in sc[key])
+            lines.append(f"- {key}: {cells}")
+        cells = ", ".join(f"{r['x']}: {r['compile_s']:.1f} s" for r in sc["swarms"])
+        lines.append(f"- compile time against swarms: {cells}")
+    if "roofline" in report:
+        rf = report["roofline"]
+        lines += [
+            "",
+            f"Roofline: the fitness costs {rf['flops_per_eval']:.3g} FLOPs per "
+            f"particle-evaluation ({rf['samples']} samples), W1 achieves "
+            f"{rf['achieved_flops'] / 1e9:.1f} GFLOP/s; a 4096² float32 matmul reaches "
+            f"{rf['matmul_peak_flops'] / 1e9:.1f} GFLOP/s: "
+            f"{100 * rf['fraction_of_peak']:.0f} % of that peak.",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--skip", default="", help="comma-separated: peers,scaling,memory,roofline")
+    ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "speed")
+    args = ap.parse_args(argv)
+    skip = set(filter(None, args.skip.split(",")))
+    args.iterations = 100 if args.quick else FULL_ITERATIONS
+    args.repeats = 1 if args.quick else 3
+    args.peer_iterations = 5 if args.quick else 50
+    args.scale_iterations = 20 if args.quick else 200
+    args.memory_iterations = 20 if args.quick else FULL_ITERATIONS
+    args.sizes = (100, 500) if args.quick else (100, 200, 500, 1000, 2000, 5000)
+    args.particle_counts = (16, 64) if args.quick else (16, 32, 64, 128, 256, 512)
+    args.swarm_counts = (1, 4) if args.quick else (1, 2, 4, 8, 16, 32, 64)
+    args.iteration_counts = (20, 40) if args.quick else (100, 250, 500, 1000, 2000)
+    report = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
+        f"{jax.devices()[0].platform}, JAX {jax.__version__}",
+        "repeats": args.repeats,
+    }
+    section_w1(args, report)
+    if "peers" not in skip:
+        section_peers(args, report)
+    if "scaling" not in skip:
+        section_scaling(args, report)
+    if "memory" not in skip:
+        section_memory(args, report)
+    if "roofline" not in skip:
+        section_roofline(args, report)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "report.json").write_text(json.dumps(report, indent=1))
+    text = markdown(report)
+    (args.out / "report.md").write_text(text)
+    figures(report, args.out)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
