@@ -1,6 +1,7 @@
 """Speed of the swarm (SPEC §5): W1 against peers in the same run, scaling curves, roofline.
 
     python benchmarks/speed.py [--quick] [--out DIR] [--skip peers,scaling,memory,roofline]
+                               [--only memory,...]   # rerun sections into the last report
 
 What it measures, all with ``refine=False`` (the swarm alone, the workload peers share):
 
@@ -15,7 +16,7 @@ What it measures, all with ``refine=False`` (the swarm alone, the workload peers
   jit-compiled.  NumPy and pyswarms run ``--peer-iterations`` (default 50) iterations and
   are scaled linearly to 2000 (their cost per iteration is constant), which the table says.
   evosax runs the full 2000.  Ratios are peer time / ours (warm).
-- **Scaling** (warm seconds, min of 2, at ``--scale-iterations`` = 200 iterations, scaled to
+- **Scaling** (warm seconds, min of 2, at 100 and 200 iterations, the difference scaled to
   2000): against N (100 ... 5,000 points, every point in the fitness), particles (16 ... 512),
   swarms (1 ... 64; degree 1-4 pairs with n <= 25 and 128 samples, so every swarm costs the
   same) and iterations (W1 at 100 ... 2000); the cold compile time against the swarms.
@@ -311,7 +312,7 @@ def _swarm_layout(s):
 
 
 MEMORY_SNIPPET = """
-import resource, sys, numpy as np
+import sys, numpy as np
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
 n = int(sys.argv[1]); it = int(sys.argv[2])
@@ -320,7 +321,10 @@ if n == 200:
 else:
     x = np.linspace(-2, 2, n); pts = np.c_[x, 0.5 * np.sin(x) + np.exp(-30 * x**2)]
 fit(pts, cps=range(4, 11), degrees=(1, 2, 3), refine=False, iterations=it)
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+# VmHWM, not ru_maxrss: Linux keeps ru_maxrss across fork + exec, so a child would report
+# the benchmark's own peak.
+hwm = [ln for ln in open("/proc/self/status") if ln.startswith("VmHWM")][0]
+print(int(hwm.split()[1]) / 1024)
 """
 
 
@@ -465,8 +469,9 @@ def markdown(report) -> str:
         sc = report["scaling"]
         lines += [
             "",
-            f"Scaling (warm, timed at {sc['iterations_used']} iterations, scaled "
-            "to 2000; swarms: equal-cost swarms, 128 samples):",
+            "Scaling: marginal seconds per 2000 iterations of the swarm stage (timed warm at "
+            f"{sc['iterations_used']} and {2 * sc['iterations_used']} iterations; swarms: "
+            "equal-cost swarms, 128 samples); iterations: whole warm `fit` calls:",
             "",
         ]
         for key in ("N", "particles", "swarms", "iterations"):
@@ -491,32 +496,47 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--skip", default="", help="comma-separated: peers,scaling,memory,roofline")
+    ap.add_argument(
+        "--only",
+        default="",
+        help="comma-separated sections to rerun into the existing report (w1 first if given)",
+    )
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "speed")
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
     args.iterations = 100 if args.quick else FULL_ITERATIONS
     args.repeats = 1 if args.quick else 3
     args.peer_iterations = 5 if args.quick else 50
-    args.scale_iterations = 20 if args.quick else 200
+    args.scale_iterations = 20 if args.quick else 100
     args.memory_iterations = 20 if args.quick else FULL_ITERATIONS
     args.sizes = (100, 500) if args.quick else (100, 200, 500, 1000, 2000, 5000)
     args.particle_counts = (16, 64) if args.quick else (16, 32, 64, 128, 256, 512)
     args.swarm_counts = (1, 4) if args.quick else (1, 2, 4, 8, 16, 32, 64)
     args.iteration_counts = (20, 40) if args.quick else (100, 250, 500, 1000, 2000)
-    report = {
-        "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
-        f"{jax.devices()[0].platform}, JAX {jax.__version__}",
-        "repeats": args.repeats,
+    sections = {
+        "w1": section_w1,
+        "peers": section_peers,
+        "scaling": section_scaling,
+        "memory": section_memory,
+        "roofline": section_roofline,
     }
-    section_w1(args, report)
-    if "peers" not in skip:
-        section_peers(args, report)
-    if "scaling" not in skip:
-        section_scaling(args, report)
-    if "memory" not in skip:
-        section_memory(args, report)
-    if "roofline" not in skip:
-        section_roofline(args, report)
+    only = set(filter(None, args.only.split(",")))
+    if only - set(sections):
+        ap.error(f"--only: unknown sections {sorted(only - set(sections))}; have {list(sections)}")
+    if only:  # rerun some sections, keep the others of the last report
+        previous = args.out / "report.json"
+        if not previous.is_file():
+            ap.error(f"--only needs an earlier full run's {previous}")
+        report = json.loads(previous.read_text())
+    else:
+        report = {
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
+            f"{jax.devices()[0].platform}, JAX {jax.__version__}",
+            "repeats": args.repeats,
+        }
+    for name, run in sections.items():
+        if name in (only or set(sections) - skip):
+            run(args, report)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "report.json").write_text(json.dumps(report, indent=1))
     text = markdown(report)

@@ -40,7 +40,8 @@ SCHEMA = {
     "data_dir": (
         None,
         "str?",
-        "folder holding outlines/outlines.npz (default: $SWARMCURVES_DATA, else ../shared/data)",
+        "folder holding outlines/outlines.npz (default: $SWARMCURVES_DATA, else ../shared/data "
+        "from the working folder or beside the repository)",
     ),
     "closed": (None, "bool?", "closed curve (default: the dataset's own; false for files)"),
     "cps": ("4-10", "counts", "control-point counts: an int, a list, or a range 'A-B'"),

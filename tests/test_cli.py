@@ -186,7 +186,7 @@ def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig):
-    proc = subprocess.Popen(
+    with subprocess.Popen(
         [
             sys.executable,
             "-m",
@@ -200,13 +200,14 @@ def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-    )
-    try:
-        time.sleep(12)  # compile and run a few chunks
-        proc.send_signal(sig)
-        out, err = proc.communicate(timeout=120)
-    finally:
-        proc.kill()  # never leave a 200,000-iteration run behind when the test fails
+    ) as proc:  # closes the pipes and reaps the process even when the test fails
+        try:
+            time.sleep(12)  # compile and run a few chunks
+            proc.send_signal(sig)
+            out, err = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:  # never leave a 200,000-iteration run behind
+                proc.kill()
     assert proc.returncode == 0, err
     assert "stopped on an interrupt (best solutions so far)" in out
     curves = read_solutions(tmp_path / "o" / "solutions.json")

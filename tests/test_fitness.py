@@ -15,7 +15,8 @@ def as_jax(basis):
     return SampleBasis(*(jnp.asarray(x, jnp.float32) for x in basis))
 
 
-@given(st.integers(0, 1000), st.integers(1, 300))
+# Sample counts around the unrolled block of 128 and its scan; each count compiles once.
+@given(st.integers(0, 1000), st.sampled_from([1, 2, 7, 48, 127, 128, 129, 255, 300]))
 def test_nearest_sample_is_argmin_of_segment_distance(seed, num):
     rng = np.random.default_rng(seed)
     pts = rng.uniform(-1, 1, (40, 2)).astype(np.float32)
