@@ -157,20 +157,24 @@ def _random(n, degree, closed, seed, num_points=200):
     return pts, _spline(ctrl, degree, closed)
 
 
+def _known(name, figure, pts, truth: Curve, fit_kwargs, **extra) -> Case:
+    """A case whose data come from the spline ``truth``."""
+    return Case(
+        name,
+        figure,
+        pts,
+        truth.closed,
+        fit_kwargs,
+        truth=truth,
+        truth_samples=_dense(truth),
+        **extra,
+    )
+
+
 def _fig2():
     pts, truth = _random(6, 3, False, seed=0)
-    return [
-        Case(
-            "fig2 random open cubic, 6 cp",
-            "Fig. 2",
-            pts,
-            False,
-            {"cps": range(4, 9), "degrees": 3},
-            truth=truth,
-            truth_samples=_dense(truth),
-            show=(3, 6),
-        )
-    ]
+    fit_kwargs = {"cps": range(4, 9), "degrees": 3}
+    return [_known("fig2 random open cubic, 6 cp", "Fig. 2", pts, truth, fit_kwargs, show=(3, 6))]
 
 
 def _fig3():
@@ -179,14 +183,12 @@ def _fig3():
         for n in range(5, 11):
             pts, truth = _random(n, 3, closed, seed=100 + n)
             cases.append(
-                Case(
+                _known(
                     f"fig3 random {'closed' if closed else 'open'} cubic, {n} cp",
                     "Fig. 3",
                     pts,
-                    closed,
+                    truth,
                     {"cps": range(4, 11), "degrees": 3},
-                    truth=truth,
-                    truth_samples=_dense(truth),
                     note="best of the seven solutions n = 4..10",
                 )
             )
@@ -197,14 +199,12 @@ def _fig4(data_dir):
     butterfly = butterfly_nurbs()
     pts = butterfly.evaluate(np.linspace(0.0, 1.0, 200, endpoint=False))
     cases = [
-        Case(
+        _known(
             "fig4 butterfly NURBS (stand-in)",
             "Fig. 4",
             pts,
-            True,
+            butterfly,
             {"cps": range(8, 21, 2), "degrees": 3, "rational": True},
-            truth=butterfly,
-            truth_samples=_dense(butterfly),
             show="sparsest",
             note="a stand-in: the paper's Butterfly is not published with coordinates",
         )
@@ -271,25 +271,21 @@ def _fig6():
     quintic_pts, quintic = _random(8, 5, False, seed=7)
     cubic_pts, cubic = _random(6, 3, False, seed=8)
     return [
-        Case(
+        _known(
             "fig6 quintic (8 cp) fitted by cubics",
             "Fig. 6",
             quintic_pts,
-            False,
+            quintic,
             {"cps": range(6, 13), "degrees": (3, 5)},
-            truth=quintic,
-            truth_samples=_dense(quintic),
             show=(3, 8),
             note="degree 5 at n = 8 is the true model",
         ),
-        Case(
+        _known(
             "fig6 cubic (6 cp) fitted by polygons",
             "Fig. 6",
             cubic_pts,
-            False,
+            cubic,
             {"cps": range(4, 25, 2), "degrees": (1, 3)},
-            truth=cubic,
-            truth_samples=_dense(cubic),
             show=(1, 24),
             note="degree 3 at n = 6 is the true model",
         ),
