@@ -24,7 +24,8 @@ What it measures, all with ``refine=False`` (the swarm alone, the workload peers
 - **Roofline**: the fitness's FLOPs per particle-evaluation counted from its shapes, the
   achieved FLOP/s on W1, and this CPU's float32 peak measured by a 4096² matmul.
 
-Writes report.md (also printed), report.json and scaling.png / roofline.png into ``--out``
+The peers come with ``pip install ".[bench]"`` (pyswarms, evosax); a missing one is reported
+as nan.  Writes report.md (also printed), report.json and scaling.png / roofline.png into ``--out``
 (default ``benchmarks/results/speed``).  ``--quick`` shrinks everything for a smoke test.
 """
 
