@@ -48,6 +48,8 @@ from swarmcurves_jax.paper import (  # noqa: E402
 from swarmcurves_jax.plotting import plot_error_vs_cps, plot_result  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
+PLAIN = ("error_pct_diag", "wall_time")  # printed as plain numbers, not in e-notation
+EXCURSION = 0.05  # symmetric distance above which a solution is flagged as leaving the data
 COLUMNS = (
     "figure",
     "case",
@@ -180,9 +182,6 @@ def claim_lines(runs) -> list[str]:
     return lines
 
 
-PLAIN = ("error_pct_diag", "wall_time")
-
-
 def excursion_lines(runs) -> list[str]:
     """Solutions far from the truth although close to the data: loops and spikes between
     data points, which the data-to-curve error cannot see."""
@@ -205,9 +204,6 @@ def excursion_lines(runs) -> list[str]:
                 f"data error {r['error']:.2e}, symmetric distance {r['symmetric_distance']:.2e}"
             )
     return lines
-
-
-EXCURSION = 0.05
 
 
 def full_table(rows) -> list[str]:

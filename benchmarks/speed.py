@@ -48,7 +48,7 @@ import numpy as np
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
 from swarmcurves_jax.fit import _reach, default_num_samples, normalise
-from swarmcurves_jax.fitness import make_sample_basis, point_distances
+from swarmcurves_jax.fitness import SampleBasis, make_sample_basis, point_distances
 from swarmcurves_jax.pso import default_params
 
 REPO = Path(__file__).resolve().parents[1]
@@ -220,26 +220,25 @@ def section_peers(args, report):
     pts, bases = w1_problem()
     it_full, it_peer = args.iterations, args.peer_iterations
     rows = {}
-    t0 = time.perf_counter()
-    for (k, n), b in zip(W1_PAIRS, _cut(bases)):
-        numpy_pso(b, pts, n * 2, it_peer)
-    rows["NumPy (same fitness)"] = (time.perf_counter() - t0) * it_full / it_peer, True
+
+    def per_swarm(run):
+        """Seconds for one ``run`` per W1 swarm at ``it_peer`` iterations, scaled to 2000."""
+        t0 = time.perf_counter()
+        for n, b in _live(bases):
+            run(b, pts, n * 2, it_peer)
+        return (time.perf_counter() - t0) * it_full / it_peer, True
+
+    rows["NumPy (same fitness)"] = per_swarm(numpy_pso)
     try:
         import pyswarms  # noqa: F401
 
-        t0 = time.perf_counter()
-        for (k, n), b in zip(W1_PAIRS, _cut(bases)):
-            pyswarms_run(b, pts, n * 2, it_peer)
-        rows["pyswarms GlobalBestPSO"] = (time.perf_counter() - t0) * it_full / it_peer, True
+        rows["pyswarms GlobalBestPSO"] = per_swarm(pyswarms_run)
     except ImportError:
         rows["pyswarms GlobalBestPSO"] = (math.nan, True)
     try:
         program = evosax_program(it_full)
         keys = jax.random.split(jax.random.key(0), len(W1_PAIRS))
-        stacked = tuple(jnp.stack([jnp.asarray(b[i]) for b in bases]) for i in range(7))
-        from swarmcurves_jax.fitness import SampleBasis
-
-        basis = SampleBasis(*stacked)
+        basis = SampleBasis(*(jnp.asarray(np.stack(parts)) for parts in zip(*bases)))
         data = jnp.asarray(pts)
         cold, warm, best = timed(
             lambda: jax.block_until_ready(program(keys, basis, data)), args.repeats
@@ -258,12 +257,12 @@ def section_peers(args, report):
         print(f"{name}: {r['seconds']:.1f} s, {r['ratio']:.1f}x ours", file=sys.stderr)
 
 
-def _cut(bases):
-    """The bases without their padding columns (peers see only live coordinates)."""
-    out = []
-    for (k, n), b in zip(W1_PAIRS, bases):
-        out.append(tuple(a[:, :n] if a.ndim == 2 else a for a in b))
-    return out
+def _live(bases):
+    """``(n, basis)`` per W1 swarm, the basis without its padding columns (the NumPy peers
+    see only live coordinates)."""
+    return [
+        (n, tuple(a[:, :n] if a.ndim == 2 else a for a in b)) for (_, n), b in zip(W1_PAIRS, bases)
+    ]
 
 
 def section_scaling(args, report):
@@ -358,8 +357,7 @@ def section_roofline(args, report):
     size = 4096
     a = jax.random.normal(jax.random.key(0), (size, size), jnp.float32)
     mm = jax.jit(lambda x: x @ x)
-    jax.block_until_ready(mm(a))
-    best = min(_time_once(lambda: jax.block_until_ready(mm(a))) for _ in range(3))
+    _, best, _ = timed(lambda: jax.block_until_ready(mm(a)), 3)  # the first call compiles
     peak = 2 * size**3 / best
     samples = default_num_samples(W1_PAIRS, False)
     per_eval, per_iter = fitness_flops(200, samples, 10, 2, 64, 21)
@@ -374,12 +372,6 @@ def section_roofline(args, report):
         "samples": samples,
     }
     print(f"roofline: {achieved / 1e9:.1f} GFLOP/s of {peak / 1e9:.1f} peak", file=sys.stderr)
-
-
-def _time_once(fn):
-    t0 = time.perf_counter()
-    fn()
-    return time.perf_counter() - t0
 
 
 # --------------------------------------------------------------------------- report
