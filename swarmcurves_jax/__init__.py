@@ -5,6 +5,7 @@ as one jit-compiled JAX program (CPU by default, a GPU when JAX sees one).
 """
 
 from .basis import design_matrix as design_matrix
+from .batch import fit_many as fit_many
 from .curves import SCHEMA_VERSION as SCHEMA_VERSION
 from .curves import Curve as Curve
 from .fit import fit as fit
@@ -27,6 +28,7 @@ __all__ = [
     "default_params",
     "design_matrix",
     "fit",
+    "fit_many",
     "make_knots",
     "normalise",
     "periodic_uniform_knots",

@@ -13,6 +13,7 @@ from typing import Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import PartitionSpec as P
 
 from . import pso
 from . import refine as local
@@ -28,6 +29,7 @@ from ._validation import (
 )
 from .basis import design_matrix
 from .curves import Curve
+from .devices import Placement
 from .fitness import (
     SampleBasis,
     foot_samples,
@@ -45,7 +47,7 @@ from .knots import (
 from .projection import project_points
 from .results import FitResult
 
-__all__ = ["fit", "normalise", "default_num_samples"]
+__all__ = ["fit", "normalise", "default_num_samples", "bucket_length"]
 
 
 def normalise(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -140,89 +142,146 @@ def _by_degree(fn, groups, *args):
     return jax.tree_util.tree_map(lambda *p: jnp.concatenate(p), *parts)
 
 
+def _masked_mean(d, mask, count):
+    """Mean of ``d`` over the real points: the padding (``mask`` 0) adds nothing."""
+    return jnp.sum(d * mask) / count
+
+
+def _over_curves(fn, per_curve, shared, mesh, batch):
+    """``fn(shared, *one_curve)`` for every curve along the leading axis of ``per_curve``.
+
+    A loop (``lax.map``), ``batch`` curves vmapped per trip: with ``batch`` 1 every curve
+    runs exactly the program a lone fit runs, so results do not depend on the batch (on
+    XLA:CPU a vmapped curve axis also makes the work 10-70 % slower).  With a ``mesh`` the
+    curves are split over its devices by ``shard_map``, each looping over its own share.
+    """
+
+    def local(per_curve, shared):
+        size = jax.tree_util.tree_leaves(per_curve)[0].shape[0]
+        step = min(batch, size)
+        return jax.lax.map(
+            lambda c: fn(shared, *c), per_curve, batch_size=step if step > 1 else None
+        )
+
+    if mesh is None:
+        return local(per_curve, shared)
+    spec = P(mesh.axis_names[0])
+    # No collectives inside: each device's loop is independent, so the varying-axis
+    # checks (which would want every replicated loop carry cast) are off.
+    split = jax.shard_map(local, mesh=mesh, in_specs=(spec, P()), out_specs=spec, check_vma=False)
+    return split(per_curve, shared)
+
+
 @functools.partial(
-    jax.jit, static_argnames=("space", "num_particles", "num_steps", "seeded", "groups")
+    jax.jit,
+    static_argnames=("space", "num_particles", "num_steps", "seeded", "groups", "mesh", "batch"),
 )
 def _swarm_program(
-    root_key,
-    pairs,
+    keys,
     state,
-    params,
     boxes,
-    bases,
     seeds,
     points,
-    tol,
-    max_steps,
+    mask,
+    shared,
     *,
     space,
     num_particles,
     num_steps,
     seeded,
     groups,
+    mesh=None,
+    batch=1,
 ):
-    """Run ``num_steps`` PSO steps of every swarm; swarms whose ``step`` is 0 start fresh.
+    """Run ``num_steps`` PSO steps of every swarm of every curve; swarms whose ``step`` is 0
+    start fresh.  Per curve (leading axis): ``keys`` (key data), ``state``, ``boxes``,
+    ``seeds``, ``points`` (padded to a bucket length) and ``mask`` (1 on real points);
+    ``shared``: ``(pairs, params, bases, tol, max_steps)``.
 
-    A swarm's key is ``root_key`` folded with its degree and count, so its random stream
-    does not depend on which other swarms share the call.
+    A swarm's key is its curve's key folded with its degree and count, so its random
+    stream depends neither on the other swarms nor on the other curves of the call.
     """
 
-    def one_swarm(pair, state, box, basis, seed, k):
-        key = jax.random.fold_in(jax.random.fold_in(root_key, pair[0]), pair[1])
-        init_key, run_key = jax.random.split(key)
-        fresh = pso.init(init_key, box, num_particles, seed if seeded else None)
-        state = jax.tree_util.tree_map(lambda a, b: jnp.where(state.step == 0, a, b), fresh, state)
-        fitness_fn = jax.vmap(lambda q: jnp.mean(_distances(q, basis, points, space, pair, k)))
-        return pso.run(run_key, state, params, box, fitness_fn, num_steps, tol, max_steps)
+    def one_curve(shared, key_data, state, boxes, seeds, points, mask):
+        pairs, params, bases, tol, max_steps = shared
+        root_key = jax.random.wrap_key_data(key_data)
+        count = jnp.sum(mask)
 
-    return _by_degree(one_swarm, groups, pairs, state, boxes, bases, seeds)
+        def one_swarm(pair, state, box, basis, seed, k):
+            key = jax.random.fold_in(jax.random.fold_in(root_key, pair[0]), pair[1])
+            init_key, run_key = jax.random.split(key)
+            fresh = pso.init(init_key, box, num_particles, seed if seeded else None)
+            state = jax.tree_util.tree_map(
+                lambda a, b: jnp.where(state.step == 0, a, b), fresh, state
+            )
+            fitness_fn = jax.vmap(
+                lambda q: _masked_mean(_distances(q, basis, points, space, pair, k), mask, count)
+            )
+            return pso.run(run_key, state, params, box, fitness_fn, num_steps, tol, max_steps)
+
+        return _by_degree(one_swarm, groups, pairs, state, boxes, bases, seeds)
+
+    per_curve = (keys, state, boxes, seeds, points, mask)
+    return _over_curves(one_curve, per_curve, shared, mesh, batch)
 
 
 #: Starts refined per swarm: its best, its least-squares seed, its next best particles.
 REFINE_STARTS = 4
 
 
-@functools.partial(jax.jit, static_argnames=("space", "method", "seeded", "groups"))
-def _refine_program(pairs, state, boxes, bases, seeds, points, *, space, method, seeded, groups):
-    """Polish every swarm from ``REFINE_STARTS`` starts; per swarm, the result with the best
-    hold-out score (:data:`swarmcurves_jax.refine.HOLDOUT_EVERY`) and its fitness."""
+@functools.partial(
+    jax.jit, static_argnames=("space", "method", "seeded", "groups", "mesh", "batch")
+)
+def _refine_program(
+    state, boxes, seeds, points, mask, shared, *, space, method, seeded, groups, mesh=None, batch=1
+):
+    """Polish every swarm of every curve from ``REFINE_STARTS`` starts; per swarm, the
+    result with the best hold-out score (:data:`swarmcurves_jax.refine.HOLDOUT_EVERY`)
+    and its fitness.  Padded points (``mask`` 0) have zero residuals."""
 
-    def one_swarm(pair, state, box, basis, seed, k):
-        def residuals(q, foot):
-            return _distances(q, basis, points, space, pair, k, foot)
+    def one_curve(shared, state, boxes, seeds, points, mask):
+        pairs, bases = shared
+        holdout = (jnp.arange(points.shape[0]) % local.HOLDOUT_EVERY == 2) * mask
 
-        def search(q):
-            return foot_samples(*_geometry(q, space), space.basis(q, pair, k, basis), points)
+        def one_swarm(pair, state, box, basis, seed, k):
+            def residuals(q, foot):
+                return _distances(q, basis, points, space, pair, k, foot) * mask
 
-        free = box.mask * (box.lower != box.upper)  # pinned ends and padding stay
-        others = min(REFINE_STARTS - 1 - int(seeded), state.pbest_fitness.shape[0])
-        _, top = jax.lax.top_k(-state.pbest_fitness, others)
-        starts = [state.best_position[None], state.pbest_position[top]]
-        starts = jnp.concatenate(starts + ([seed[None]] if seeded else []))
-        polish = local.levenberg_marquardt if method == "lm" else local.lbfgs
-        holdout = (jnp.arange(points.shape[0]) % local.HOLDOUT_EVERY == 2).astype(points.dtype)
-        problem = local.Problem(residuals, search, free, box.lower, box.upper, holdout)
-        xs, fs, scores = jax.vmap(lambda x0: polish(problem, x0))(starts)
-        i = jnp.argmin(jnp.where(jnp.isnan(scores), jnp.inf, scores))
-        return xs[i], fs[i]
+            def search(q):
+                return foot_samples(*_geometry(q, space), space.basis(q, pair, k, basis), points)
 
-    return _by_degree(one_swarm, groups, pairs, state, boxes, bases, seeds)
+            free = box.mask * (box.lower != box.upper)  # pinned ends and padding stay
+            others = min(REFINE_STARTS - 1 - int(seeded), state.pbest_fitness.shape[0])
+            _, top = jax.lax.top_k(-state.pbest_fitness, others)
+            starts = [state.best_position[None], state.pbest_position[top]]
+            starts = jnp.concatenate(starts + ([seed[None]] if seeded else []))
+            polish = local.levenberg_marquardt if method == "lm" else local.lbfgs
+            problem = local.Problem(residuals, search, free, box.lower, box.upper, holdout, mask)
+            xs, fs, scores = jax.vmap(lambda x0: polish(problem, x0))(starts)
+            i = jnp.argmin(jnp.where(jnp.isnan(scores), jnp.inf, scores))
+            return xs[i], fs[i]
+
+        return _by_degree(one_swarm, groups, pairs, state, boxes, bases, seeds)
+
+    per_curve = (state, boxes, seeds, points, mask)
+    return _over_curves(one_curve, per_curve, shared, mesh, batch)
 
 
-def _empty_state(num_swarms, num_particles, dim, dtype) -> pso.PSOState:
+def _empty_state(num_curves, num_swarms, num_particles, dim, dtype) -> pso.PSOState:
     """Host-built placeholder (step 0): the program initialises it on its first chunk."""
-    z = lambda *shape: np.zeros((num_swarms, *shape), dtype)  # noqa: E731
+    lead = (num_curves, num_swarms)
+    z = lambda *shape: np.zeros((*lead, *shape), dtype)  # noqa: E731
     return pso.PSOState(
         position=z(num_particles, dim),
         velocity=z(num_particles, dim),
         pbest_position=z(num_particles, dim),
-        pbest_fitness=np.full((num_swarms, num_particles), np.inf, dtype),
+        pbest_fitness=np.full((*lead, num_particles), np.inf, dtype),
         gbest_position=z(dim),
-        gbest_fitness=np.full((num_swarms,), np.inf, dtype),
+        gbest_fitness=np.full(lead, np.inf, dtype),
         best_position=z(dim),
-        best_fitness=np.full((num_swarms,), np.inf, dtype),
-        stall=np.zeros((num_swarms,), np.int32),
-        step=np.zeros((num_swarms,), np.int32),
+        best_fitness=np.full(lead, np.inf, dtype),
+        stall=np.zeros(lead, np.int32),
+        step=np.zeros(lead, np.int32),
     )
 
 
@@ -468,51 +527,165 @@ def fit(
     """
     start = time.perf_counter()
     check_no_unknown(unknown, _FIT_ARGS)
-    pts = check_points(points)
-    closed, rational = check_bool(closed, "closed"), check_bool(rational, "rational")
-    free_knots = check_bool(free_knots, "free_knots")
-    fix_ends, progress = check_bool(fix_ends, "fix_ends"), check_bool(progress, "progress")
+    opts = _options(**{name: value for name, value in locals().items() if name in _OPTIONS})
+    closed = check_bool(closed, "closed")
     if callback is not None and not callable(callback):
         raise ValueError(f"callback must be callable or None, got {callback!r}")
-    pairs = check_pairs(cps, degrees, closed)
-    num_particles = check_positive_int(particles, "particles")
-    iterations = check_positive_int(iterations, "iterations")
-    chunk_size = check_positive_int(chunk_size, "chunk_size")
-    tol = check_tol(tol)
-    weight_bounds = check_weight_bounds(weight_bounds)
+    prep = _prepare(points, closed, opts, seed, "points")
+    bar = _progress_bar(opts.iterations, prep.pairs) if opts.progress else None
+    try:
+        (result,) = _run_group(
+            [prep],
+            opts,
+            callback=None if callback is None else lambda at, best: callback(at, best[0]),
+            bar=bar,
+            catch_interrupt=True,
+            start=start,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    return result
+
+
+class _Options(NamedTuple):
+    """A call's validated options, shared by every curve of a batch."""
+
+    cps: object
+    degrees: object
+    rational: bool
+    free_knots: bool
+    fix_ends: bool
+    init: str
+    method: str | None
+    particles: int
+    iterations: int
+    tol: float | None
+    params: pso.PSOParams
+    weight_bounds: tuple[float, float]
+    num_samples: int | None
+    chunk_size: int
+    progress: bool
+    max_fitness_points: int
+    dtype: object
+
+
+#: fit's keyword arguments that every curve of a batch shares (checked by ``_options``).
+_OPTIONS = (
+    "cps degrees rational free_knots fix_ends init refine particles iterations tol params "
+    "weight_bounds num_samples chunk_size progress max_fitness_points dtype"
+).split()
+
+
+def _options(
+    cps,
+    degrees,
+    rational,
+    free_knots,
+    fix_ends,
+    init,
+    refine,
+    particles,
+    iterations,
+    tol,
+    params,
+    weight_bounds,
+    num_samples,
+    chunk_size,
+    progress,
+    max_fitness_points,
+    dtype,
+) -> _Options:
+    """Check every shared option; exact errors that name the argument."""
+    check_pairs(cps, degrees, False)
     if init not in ("lsq", "uniform"):
         raise ValueError(f"init must be 'lsq' or 'uniform', got {init!r}")
-    method = _refine_method(refine)
-    if closed:
-        pts = _drop_closing_duplicate(pts)
-    n_max = max(n for _, n in pairs)
-    if len(pts) < n_max:
-        raise ValueError(
-            f"points: {len(pts)} points are too few for {n_max} control points; "
-            f"give at least as many points as the largest count in cps"
-        )
-    if num_samples is None:
-        num_samples = default_num_samples(pairs, closed)
-    num_samples = check_positive_int(num_samples, "num_samples")
+    if num_samples is not None:
+        num_samples = check_positive_int(num_samples, "num_samples")
     dtype = jnp.dtype(dtype)
     if dtype not in (jnp.float32, jnp.float64):
         raise ValueError(f"dtype must be float32 or float64, got {dtype}")
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         raise ValueError("dtype float64 needs jax.config.update('jax_enable_x64', True)")
-    params = check_params(pso.default_params() if params is None else params)
-    max_fitness_points = check_positive_int(max_fitness_points, "max_fitness_points")
-    root_key = _root_key(seed)
-    seed_value = int(seed) if isinstance(seed, (int, np.integer)) else None  # for reports
+    return _Options(
+        cps=cps,
+        degrees=degrees,
+        rational=check_bool(rational, "rational"),
+        free_knots=check_bool(free_knots, "free_knots"),
+        fix_ends=check_bool(fix_ends, "fix_ends"),
+        init=init,
+        method=_refine_method(refine),
+        particles=check_positive_int(particles, "particles"),
+        iterations=check_positive_int(iterations, "iterations"),
+        tol=check_tol(tol),
+        params=check_params(pso.default_params() if params is None else params),
+        weight_bounds=check_weight_bounds(weight_bounds),
+        num_samples=num_samples,
+        chunk_size=check_positive_int(chunk_size, "chunk_size"),
+        progress=check_bool(progress, "progress"),
+        max_fitness_points=check_positive_int(max_fitness_points, "max_fitness_points"),
+        dtype=dtype,
+    )
 
-    norm_pts, center, scale = normalise(pts)
+
+def bucket_length(n: int) -> int:
+    """The padded length of a curve of ``n`` fitness points: a multiple of 16 up to 128,
+    then 8 steps per octave, so padding adds less than 12.5 % (and curves of similar
+    lengths share one compiled program)."""
+    if n <= 128:
+        return 16 * math.ceil(n / 16)
+    step = 2 ** (n.bit_length() - 4)  # 1/8 of the octave [2^(b-1), 2^b) holding n
+    return step * math.ceil(n / step)
+
+
+class _Prepared(NamedTuple):
+    """One curve, ready for the device: host-side setup of SPEC §1, all in NumPy."""
+
+    points: np.ndarray  # the caller's points (float64; a closed input's repeat dropped)
+    norm_pts: np.ndarray  # normalised: what the errors are measured on
+    center: np.ndarray
+    scale: float
+    closed: bool
+    pairs: list
+    space: _Space
+    groups: tuple | None
+    data: np.ndarray  # the fitness's points (at most max_fitness_points), padded
+    mask: np.ndarray  # 1 on real points, 0 on padding
+    boxes: pso.Box
+    seeds: np.ndarray
+    key_data: np.ndarray
+    seed_value: int | None  # for reports
+
+
+def _prepare(points, closed: bool, opts: _Options, seed, name: str) -> _Prepared:
+    """Validate and normalise one curve's points and build its swarms' boxes and seeds.
+
+    ``name`` is how errors call the points (``points``, ``point_sets[3]``).
+    """
+    root_key = _root_key(seed)
+    try:
+        pts = check_points(points)
+    except ValueError as exc:
+        raise ValueError(name + str(exc)[len("points") :]) from None
+    pairs = check_pairs(opts.cps, opts.degrees, closed)
+    if closed:
+        pts = _drop_closing_duplicate(pts)
+    n_max = max(n for _, n in pairs)
+    if len(pts) < n_max:
+        raise ValueError(
+            f"{name}: {len(pts)} points are too few for {n_max} control points; "
+            f"give at least as many points as the largest count in cps"
+        )
     if np.ptp(pts, axis=0).max() == 0:
         warnings.warn(
-            "points all coincide: every curve collapses onto that point", UserWarning, stacklevel=2
+            f"{name} all coincide: every curve collapses onto that point", UserWarning, stacklevel=3
         )
+    dtype = opts.dtype
+    norm_pts, center, scale = normalise(pts)
     fit_pts = _canonical_order(norm_pts)
-    if len(fit_pts) > max_fitness_points:
+    if len(fit_pts) > opts.max_fitness_points:
         fit_pts = fit_pts[
-            np.unique(np.linspace(0, len(fit_pts) - 1, max_fitness_points).round().astype(int))
+            np.unique(np.linspace(0, len(fit_pts) - 1, opts.max_fitness_points).round().astype(int))
         ]
     # The swarm's data, and the host's seed and ends, in the swarm's precision: the host
     # then works on exactly the numbers the device sees, so shifting or scaling the input
@@ -520,49 +693,101 @@ def fit(
     fit_pts = fit_pts.astype(dtype).astype(np.float64)
     dim = pts.shape[1]
     degrees_used = sorted({k for k, _ in pairs})
+    num_samples = opts.num_samples or default_num_samples(pairs, closed)
     space = _Space(
         n_pad=n_max,
         dim=dim,
-        rational=rational,
-        num_knots=(n_max if closed else n_max - degrees_used[0]) if free_knots else 0,
+        rational=opts.rational,
+        num_knots=(n_max if closed else n_max - degrees_used[0]) if opts.free_knots else 0,
         closed=closed,
         num_samples=num_samples,
     )
-    groups = _degree_groups(pairs) if free_knots else None
-    ends = fit_pts[[0, -1]] if (fix_ends and not closed) else None
-    boxes = _boxes(pairs, space, weight_bounds, ends, dtype)
-    _check_memory(
-        len(pairs),
-        num_particles,
+    ends = fit_pts[[0, -1]] if (opts.fix_ends and not closed) else None
+    length = bucket_length(len(fit_pts))
+    pad = length - len(fit_pts)
+    return _Prepared(
+        points=pts,
+        norm_pts=norm_pts,
+        center=center,
+        scale=scale,
+        closed=closed,
+        pairs=pairs,
+        space=space,
+        groups=_degree_groups(pairs) if opts.free_knots else None,
+        data=np.concatenate([fit_pts, np.repeat(fit_pts[-1:], pad, axis=0)]).astype(dtype),
+        mask=np.r_[np.ones(len(fit_pts)), np.zeros(pad)].astype(dtype),
+        boxes=_boxes(pairs, space, opts.weight_bounds, ends, dtype),
+        seeds=_seeds(pairs, space, fit_pts, closed, ends, dtype),
+        key_data=np.asarray(jax.random.key_data(root_key)),
+        seed_value=int(seed) if isinstance(seed, (int, np.integer)) else None,
+    )
+
+
+def group_key(prep: _Prepared) -> tuple:
+    """Curves with equal keys run in one compiled program (the shape bucket)."""
+    return prep.space, prep.groups, len(prep.data)
+
+
+def _run_group(
+    preps,
+    opts: _Options,
+    *,
+    callback=None,
+    bar=None,
+    catch_interrupt=False,
+    place=Placement(),
+    size=None,
+    start=None,
+) -> list[FitResult]:
+    """Run curves of one shape bucket (equal :func:`group_key`) as one program call.
+
+    Every array gets a leading curve axis.  The batch is padded with copies of its first
+    curve (their results dropped) to ``size`` curves (default: a multiple of the devices,
+    ``place.multiple``), so equal calls reuse one compiled program.
+    ``callback(iteration, best (curves, solutions))`` runs after every chunk.
+    """
+    start = time.perf_counter() if start is None else start
+    first = preps[0]
+    space, pairs, groups = first.space, first.pairs, first.groups
+    num = len(preps)
+    size = num + (-num % place.multiple) if size is None else size
+    padded = preps + [first] * (size - num)
+    dtype, iterations, tol = opts.dtype, opts.iterations, opts.tol
+    _check_memory(  # a device holds `place.batch` curves' temporaries at a time
+        min(place.batch, size) * place.multiple * len(pairs),
+        opts.particles,
         space.size,
-        len(fit_pts),
-        num_samples,
-        dim,
+        len(first.data),
+        space.num_samples,
+        space.dim,
         jnp.dtype(dtype).itemsize,
     )
-    seeds = _seeds(pairs, space, fit_pts, closed, ends, dtype)
-    bases = _stack_bases(pairs, closed, rational, num_samples, n_max, dtype)
-    state = _empty_state(len(pairs), num_particles, space.size, dtype)
-    pair_ids = np.array(pairs, np.int32)
-    params = pso.PSOParams(*(np.asarray(p, dtype) for p in params))
-    tol_arr = np.asarray(-1.0 if tol is None else tol, dtype)
-    max_steps = np.asarray(iterations, np.int32)
-    steps = min(chunk_size, iterations)
-    data = fit_pts.astype(dtype)
-
-    # Device arrays from the start: host arrays would key a second cache entry.
-    state, params, boxes, bases, seeds, pair_ids, data, tol_arr, max_steps = jax.device_put(
-        (state, params, boxes, bases, seeds, pair_ids, data, tol_arr, max_steps)
+    stack = lambda field: np.stack([getattr(p, field) for p in padded])  # noqa: E731
+    boxes = pso.Box(*(np.stack(parts) for parts in zip(*(p.boxes for p in padded))))
+    state = _empty_state(len(padded), len(pairs), opts.particles, space.size, dtype)
+    per_curve = (state, boxes, stack("seeds"), stack("data"), stack("mask"), stack("key_data"))
+    state, boxes, seeds, data, mask, keys = place.curves(per_curve)
+    bases = _stack_bases(pairs, space.closed, space.rational, space.num_samples, space.n_pad, dtype)
+    params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
+    shared = (
+        params,
+        bases,
+        np.array(pairs, np.int32),
+        np.asarray(-1.0 if tol is None else tol, dtype),
+        np.asarray(iterations, np.int32),
     )
+    params, bases, pair_ids, tol_arr, max_steps = place.shared(shared)
+    steps = min(opts.chunk_size, iterations)
+    seeded = opts.init == "lsq"
     history, done, stop_reason = [], 0, "iterations"
-    bar = _progress_bar(iterations, pairs) if progress else None
+    stopped = np.full(num, -1)  # per curve: the iteration after which tol was reached
 
     def report(at, best):
         if bar is not None:
             bar.update(min(at, iterations) - bar.n)
-            bar.set_postfix_str(_best_per_degree(pairs, best))
+            bar.set_postfix_str(_best_per_degree(pairs, best.min(axis=0)))
         if callback is not None:
-            callback(min(at, iterations), best)
+            callback(min(at, iterations), best[:num])
 
     # Without tol, progress reports read the previous chunk's result after the next chunk
     # is queued, so the device never waits for the host.
@@ -570,94 +795,107 @@ def fit(
     try:
         while done < iterations:
             state, info = _swarm_program(
-                root_key,
-                pair_ids,
+                keys,
                 state,
-                params,
                 boxes,
-                bases,
                 seeds,
                 data,
-                tol_arr,
-                max_steps,
+                mask,
+                (pair_ids, params, bases, tol_arr, max_steps),
                 space=space,
-                num_particles=num_particles,
+                num_particles=opts.particles,
                 num_steps=steps,
-                seeded=init == "lsq",
+                seeded=seeded,
                 groups=groups,
+                mesh=place.mesh,
+                batch=place.batch,
             )
             history.append(info.best_fitness)
             done += steps
             if tol is not None:
-                best = np.asarray(state.best_fitness)
+                best = np.asarray(place.get(state.best_fitness))
                 report(done, best)
-                if np.all(best <= tol):
+                reached = np.all(best[:num] <= tol, axis=1)
+                stopped = np.where(reached & (stopped < 0), done, stopped)
+                if np.all(reached):
                     stop_reason = "tol"
                     break
             elif callback is not None or bar is not None:
                 if pending is not None:
-                    report(pending[0], np.asarray(pending[1]))
+                    report(pending[0], np.asarray(place.get(pending[1])))
                 pending = (done, state.best_fitness)
         if pending is not None:
-            report(pending[0], np.asarray(pending[1]))
+            report(pending[0], np.asarray(place.get(pending[1])))
     except KeyboardInterrupt:
+        if not catch_interrupt:
+            raise
         stop_reason = "interrupted"
-    finally:
-        if bar is not None:
-            bar.close()
     if not history:
         raise KeyboardInterrupt
 
-    swarm = jax.device_get((state.best_position, state.best_fitness, state.step))
+    swarm = place.get((state.best_position, state.best_fitness, state.step))
     swarm_done = time.perf_counter()
     timings = {"swarm": swarm_done - start}
-    candidates = [[(swarm[0][i], float(swarm[1][i]), False)] for i in range(len(pairs))]
-    if method is not None and stop_reason != "interrupted":
-        refined = jax.device_get(
+    refined = None
+    if opts.method is not None and stop_reason != "interrupted":
+        refined = place.get(
             _refine_program(
-                pair_ids,
                 state,
                 boxes,
-                bases,
                 seeds,
                 data,
+                mask,
+                (pair_ids, bases),
                 space=space,
-                method=method,
-                seeded=init == "lsq",
+                method=opts.method,
+                seeded=seeded,
                 groups=groups,
+                mesh=place.mesh,
+                batch=place.batch,
             )
         )
         timings["refine"] = time.perf_counter() - swarm_done
-        for i, options in enumerate(candidates):
-            if refined[1][i] < options[0][1]:
-                options.append((refined[0][i], float(refined[1][i]), True))
-    history = np.concatenate(jax.device_get(history), axis=1)[:, :iterations]
-    solutions = [
-        _make_curve(
-            k,
-            n,
-            candidates[i],
-            int(swarm[2][i]),
-            space,
-            closed,
-            norm_pts,
-            center,
-            scale,
-            seed_value,
+    history = np.concatenate(place.get(history), axis=2)[:num, :, :iterations]
+    results = []
+    for b, prep in enumerate(preps):
+        candidates = [[(swarm[0][b, i], float(swarm[1][b, i]), False)] for i in range(len(pairs))]
+        if refined is not None:
+            for i, options in enumerate(candidates):
+                if refined[1][b, i] < options[0][1]:
+                    options.append((refined[0][b, i], float(refined[1][b, i]), True))
+        solutions = [
+            _make_curve(
+                k,
+                n,
+                candidates[i],
+                int(swarm[2][b, i]),
+                space,
+                prep.closed,
+                prep.norm_pts,
+                prep.center,
+                prep.scale,
+                prep.seed_value,
+            )
+            for i, (k, n) in enumerate(pairs)
+        ]
+        # What the curve would have reported alone: a lone fit stops after the chunk in
+        # which it reaches tol.
+        reason = "tol" if stopped[b] >= 0 and stop_reason != "interrupted" else stop_reason
+        ran = min(stopped[b] if stopped[b] >= 0 else done, iterations)
+        results.append(
+            FitResult(
+                solutions=solutions,
+                points=prep.points,
+                center=prep.center,
+                scale=prep.scale,
+                history=history[b, :, :ran].astype(np.float64),
+                stop_reason=reason,
+                seed=prep.seed_value,
+                wall_time=time.perf_counter() - start,
+                timings=dict(timings, curves=num),
+            )
         )
-        for i, (k, n) in enumerate(pairs)
-    ]
-    return FitResult(
-        solutions=solutions,
-        points=pts,
-        center=center,
-        scale=scale,
-        history=history.astype(np.float64),
-        stop_reason=stop_reason,
-        seed=seed_value,
-        wall_time=time.perf_counter() - start,
-        timings=timings,
-    )
+    return results
 
 
 def _degree_groups(pairs) -> tuple[tuple[int, int, int], ...]:

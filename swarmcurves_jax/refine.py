@@ -47,7 +47,8 @@ class Problem(NamedTuple):
     ``search(x)`` is the non-differentiable part (where each point's foot lies), kept out
     of every differentiation.  ``holdout`` (N,) marks points left out of the fit that pick
     the iterate returned: early stopping, so noisy data are not chased
-    (:data:`HOLDOUT_EVERY`).
+    (:data:`HOLDOUT_EVERY`).  ``valid`` (N,) marks the real points of a padded batch:
+    the residuals of the others must be zero, and means count only the real ones.
     """
 
     residuals: Callable[[jax.Array, jax.Array], jax.Array]
@@ -56,14 +57,23 @@ class Problem(NamedTuple):
     lower: jax.Array
     upper: jax.Array
     holdout: jax.Array | None = None
+    valid: jax.Array | None = None
 
 
-def _scores(holdout):
+def _mean(valid):
+    """The mean distance over the real points (all of them when ``valid`` is None)."""
+    if valid is None:
+        return jnp.mean
+    return lambda d: jnp.sum(d) / jnp.maximum(jnp.sum(valid), 1.0)
+
+
+def _scores(holdout, valid):
     """``(train weights, score)``: with a hold-out mask the fit uses the other points and
     the score (which picks the iterate returned) is the hold-out points' mean distance."""
+    ones = 1.0 if valid is None else valid
     if holdout is None:
-        return 1.0, jnp.mean
-    return 1.0 - holdout, lambda d: jnp.sum(holdout * d) / jnp.maximum(jnp.sum(holdout), 1.0)
+        return ones, _mean(valid)
+    return ones - holdout, lambda d: jnp.sum(holdout * d) / jnp.maximum(jnp.sum(holdout), 1.0)
 
 
 def levenberg_marquardt(
@@ -78,15 +88,16 @@ def levenberg_marquardt(
     Returns ``(x, mean distance over all points, score)`` for the iterate with the best
     score (``x0`` included): the hold-out mean, or without hold-out the mean itself.
     """
-    residuals, search, free, lower, upper, holdout = problem
+    residuals, search, free, lower, upper, holdout, valid = problem
     eye = jnp.eye(x0.shape[0], dtype=x0.dtype)
-    train, score = _scores(holdout)
+    train, score = _scores(holdout, valid)
+    mean = _mean(valid)
 
     def body(carry, reweight):
         x, aux, mu, best = carry
         d, jvp = jax.linearize(lambda y: residuals(y, aux), x)
         jac = jax.vmap(jvp, out_axes=1)(eye * free[None, :])  # (N, P); frozen columns are zero
-        floor = jnp.maximum(1e-2 * jnp.mean(d), 1e-8)
+        floor = jnp.maximum(1e-2 * mean(d), 1e-8)
         w = train * jnp.where(reweight, 1.0 / jnp.maximum(d, floor), 1.0)
         a = (jac * w[:, None]).T @ jac
         g = jac.T @ (w * d)
@@ -98,25 +109,25 @@ def levenberg_marquardt(
         x = jnp.where(ok, x_new, x)
         aux = jnp.where(ok, aux_new, aux)
         mu = jnp.clip(jnp.where(ok, mu / 3.0, mu * 4.0), 1e-10, 1e10)
-        best = _keep_better(ok, x_new, d_new, score, best)
+        best = _keep_better(ok, x_new, d_new, mean, score, best)
         return (x, aux, mu, best), None
 
     aux0 = search(x0)
-    best0 = _keep_better(True, x0, residuals(x0, aux0), score, None)
+    best0 = _keep_better(True, x0, residuals(x0, aux0), mean, score, None)
     stages = jnp.arange(l2_steps + l1_steps) >= l2_steps
     init = (x0, aux0, jnp.asarray(1e-3, x0.dtype), best0)
     (_, _, _, best), _ = jax.lax.scan(body, init, stages)
     return best
 
 
-def _keep_better(ok, x, d, score, best):
-    """``best`` = ``(x, mean distance, score)``, replaced by this candidate if ``ok`` and its
+def _keep_better(ok, x, d, mean, score, best):
+    """``best`` = ``(x, mean(d), score(d))``, replaced by this candidate if ``ok`` and its
     score is lower (a NaN mean or score counts as +inf); ``best=None``: the candidate."""
-    mean, value = (jnp.where(jnp.isnan(v), jnp.inf, v) for v in (jnp.mean(d), score(d)))
+    avg, value = (jnp.where(jnp.isnan(v), jnp.inf, v) for v in (mean(d), score(d)))
     if best is None:
-        return x, mean, value
+        return x, avg, value
     better = ok & (value < best[2])
-    return tuple(jnp.where(better, a, b) for a, b in zip((x, mean, value), best, strict=True))
+    return tuple(jnp.where(better, a, b) for a, b in zip((x, avg, value), best, strict=True))
 
 
 def lbfgs(
@@ -127,8 +138,9 @@ def lbfgs(
     Frozen coordinates are held by evaluating the loss at ``where(free, x, x0)``, bounds by
     clipping there, so their gradient is zero and L-BFGS never moves them.
     """
-    residuals, search, free, lower, upper, holdout = problem
-    train, score = _scores(holdout)
+    residuals, search, free, lower, upper, holdout, valid = problem
+    train, score = _scores(holdout, valid)
+    mean = _mean(valid)
 
     def project(x):
         return jnp.clip(jnp.where(free > 0, x, x0), lower, upper)
@@ -149,9 +161,9 @@ def lbfgs(
         value, grad = value_and_grad(x, state=state)
         updates, state = opt.update(grad, state, x, value=value, grad=grad, value_fn=loss)
         x = optax.apply_updates(x, updates)
-        best = _keep_better(True, project(x), distances(x), score, best)
+        best = _keep_better(True, project(x), distances(x), mean, score, best)
         return (x, state, best), None
 
-    best0 = _keep_better(True, x0, distances(x0), score, None)
+    best0 = _keep_better(True, x0, distances(x0), mean, score, None)
     (_, _, best), _ = jax.lax.scan(body, (x0, opt.init(x0), best0), None, length=steps)
     return best

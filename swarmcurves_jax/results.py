@@ -67,7 +67,13 @@ class FitResult:
     timings : dict
         Seconds per stage: ``"swarm"`` (setup, compilation and the swarm) and, when the
         solutions were refined, ``"refine"`` (its compilation included); the rest of
-        ``wall_time`` is the host's true-error projections.
+        ``wall_time`` is the host's true-error projections.  In a batch
+        (:func:`swarmcurves_jax.fit_many`) they are the seconds of the program call that
+        ran the curve together with others, and ``"curves"`` says how many.
+    batch : dict
+        For :func:`swarmcurves_jax.fit_many`: ``"call"`` (which program call ran the
+        curve), ``"bucket"`` (its padded point count), ``"points"`` (its real fitness
+        points) and ``"devices"``.  Empty for :func:`swarmcurves_jax.fit`.
     """
 
     solutions: list[Curve]
@@ -79,6 +85,7 @@ class FitResult:
     seed: int | None
     wall_time: float
     timings: dict = dataclasses.field(default_factory=dict)
+    batch: dict = dataclasses.field(default_factory=dict)
 
     @property
     def best(self) -> Curve:

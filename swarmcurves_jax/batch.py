@@ -1,0 +1,198 @@
+"""``fit_many``: many point sets, one compiled program per shape bucket, over every device.
+
+Curves are grouped by what fixes a program's shapes: dimension, open or closed, and the
+bucket length their points are padded to (:func:`swarmcurves_jax.fit.bucket_length`,
+less than 12.5 % padding; the padding is masked out, never resampled).  A group runs in
+calls of equal size, so it compiles once; inside a call the curves are split over the
+devices (:mod:`swarmcurves_jax.devices`) and each device loops over its share.  Every
+curve runs the very program a lone :func:`swarmcurves_jax.fit` runs, with the same key,
+so ``fit_many(sets, seed=s)[i]`` equals ``fit(sets[i], seed=s)`` exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+from typing import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import pso
+from ._validation import check_bool, check_no_unknown, check_positive_int
+from .devices import Placement
+from .fit import _OPTIONS, _options, _prepare, _run_group, group_key
+from .results import FitResult
+
+__all__ = ["fit_many", "padding_waste"]
+
+
+def fit_many(
+    point_sets,
+    cps=range(4, 11),
+    degrees=3,
+    *,
+    closed: bool | Sequence[bool] = False,
+    seed: int | jax.Array | Sequence = 0,
+    devices=None,
+    batch_size: int | None = None,
+    vmap_curves: int | None = None,
+    on_result: Callable[[int, FitResult], object] | None = None,
+    rational: bool = False,
+    free_knots: bool = False,
+    fix_ends: bool = True,
+    init: str = "lsq",
+    refine: bool | str = True,
+    particles: int = 64,
+    iterations: int = 2000,
+    tol: float | None = None,
+    params: pso.PSOParams | None = None,
+    weight_bounds: tuple[float, float] = (1e-2, 1e2),
+    num_samples: int | None = None,
+    chunk_size: int = 200,
+    progress: bool = False,
+    max_fitness_points: int = 2000,
+    dtype=jnp.float32,
+    **unknown,
+) -> list[FitResult]:
+    """Fit every point set with every requested degree and control-point count.
+
+    The options are :func:`swarmcurves_jax.fit`'s, shared by every curve, and the result
+    for ``point_sets[i]`` is exactly ``fit(point_sets[i], closed=closed[i], seed=seed[i],
+    ...)``: batching and sharding change where the work runs, not what it computes.
+
+    Parameters
+    ----------
+    point_sets : sequence of array_like, each (N_i, 2) or (N_i, 3)
+        The curves' points, of any lengths; or one array (B, N, D).
+    closed : bool or sequence of bool
+        One flag for all, or one per point set.
+    seed : int, JAX key, or a sequence of them
+        One seed for all (every curve gets the key a lone ``fit`` would), or one each.
+    devices : sequence of jax.Device, optional
+        Where to run: the batch is split over them (default: every device JAX sees, on
+        every host after ``jax.distributed.initialize``).
+    batch_size : int, optional
+        Curves per program call (default: 32 per device); the last calls of a group are
+        evened out, so each group compiles once.  Results do not depend on it.
+    vmap_curves : int, optional
+        Curves a device runs side by side (vmapped) per trip of its loop.  Default 1 on
+        CPUs, where vmapping curves is slower and one at a time is bit-identical to
+        ``fit``; 16 on GPUs, which need the width (results then equal ``fit``'s to
+        rounding, not bit for bit).
+    on_result : callable, optional
+        ``on_result(i, result)`` as soon as ``point_sets[i]`` is done (results arrive
+        group by group, not in input order): write files as you go.
+    progress : bool
+        A progress bar over the curves.
+
+    Returns
+    -------
+    list of FitResult, in the order of ``point_sets``; each ``result.batch`` says which
+    call ran it and its bucket.
+    """
+    check_no_unknown(unknown, _FIT_MANY_ARGS)
+    sets = _point_sets(point_sets)
+    num = len(sets)
+    closed_flags = [
+        check_bool(c, f"closed[{i}]") for i, c in enumerate(_per_curve(closed, num, "closed"))
+    ]
+    seeds = _per_curve(seed, num, "seed")
+    if on_result is not None and not callable(on_result):
+        raise ValueError(f"on_result must be callable or None, got {on_result!r}")
+    if batch_size is not None:
+        batch_size = check_positive_int(batch_size, "batch_size")
+    place = Placement.over(devices, batch=1)
+    if vmap_curves is None:
+        vmap_curves = 1 if _platform(place) == "cpu" else 16
+    place = place._replace(batch=check_positive_int(vmap_curves, "vmap_curves"))
+    local = locals()
+    opts = _options(**{name: local[name] for name in _OPTIONS})
+    preps = [
+        _prepare(points, flag, opts, seed_i, f"point_sets[{i}]")
+        for i, (points, flag, seed_i) in enumerate(zip(sets, closed_flags, seeds))
+    ]
+    groups: dict[tuple, list[int]] = {}
+    for i, prep in enumerate(preps):
+        groups.setdefault(group_key(prep), []).append(i)
+    per_call = batch_size or 32 * place.multiple
+    results: list[FitResult | None] = [None] * num
+    bar = _progress_bar(num) if opts.progress else None
+    call = 0
+    try:
+        for members in groups.values():
+            calls = math.ceil(len(members) / per_call)
+            size = math.ceil(len(members) / calls)
+            size += -size % place.multiple
+            for part in range(calls):
+                chosen = members[part * size : (part + 1) * size]
+                out = _run_group([preps[i] for i in chosen], opts, place=place, size=size)
+                for i, result in zip(chosen, out):
+                    info = {
+                        "call": call,
+                        "bucket": len(preps[i].data),
+                        "points": int(preps[i].mask.sum()),
+                        "devices": place.multiple,
+                    }
+                    results[i] = dataclasses.replace(result, batch=info)
+                    if on_result is not None:
+                        on_result(i, results[i])
+                call += 1
+                if bar is not None:
+                    bar.update(len(chosen))
+    finally:
+        if bar is not None:
+            bar.close()
+    return results
+
+
+def padding_waste(results: Sequence[FitResult]) -> float:
+    """The fraction of the fitness's point slots that were padding, over a batch."""
+    slots = sum(r.batch["bucket"] for r in results)
+    real = sum(r.batch["points"] for r in results)
+    return 1.0 - real / slots if slots else 0.0
+
+
+def _point_sets(point_sets) -> list:
+    if isinstance(point_sets, np.ndarray) and point_sets.ndim == 3:
+        return list(point_sets)
+    if isinstance(point_sets, (str, bytes)) or not isinstance(point_sets, Sequence):
+        raise ValueError(
+            "point_sets must be a list of (N, 2) or (N, 3) point arrays or one (B, N, D) "
+            f"array, got {type(point_sets).__name__}"
+        )
+    if isinstance(point_sets, np.ndarray) or (len(point_sets) > 0 and np.ndim(point_sets[0]) == 1):
+        raise ValueError(
+            f"point_sets must be a list of point arrays, got one array of shape "
+            f"{np.shape(point_sets)}; for a single curve call fit(points)"
+        )
+    if len(point_sets) == 0:
+        raise ValueError("point_sets is empty: give at least one point set")
+    return list(point_sets)
+
+
+def _per_curve(value, num: int, name: str) -> list:
+    """``value`` for every curve: one value repeated, or a sequence of ``num`` values."""
+    if isinstance(value, (list, tuple)) or (isinstance(value, np.ndarray) and value.ndim == 1):
+        if len(value) != num:
+            raise ValueError(
+                f"{name} must be one value or {num} values (one per point set), got {len(value)}"
+            )
+        return list(value)
+    return [value] * num
+
+
+def _platform(place: Placement) -> str:
+    return (jax.devices()[0] if place.mesh is None else place.mesh.devices.flat[0]).platform
+
+
+def _progress_bar(total):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="curves", unit="curve", leave=False)
+
+
+#: fit_many's keyword names, for the "did you mean" of an unknown one.
+_FIT_MANY_ARGS = tuple(p for p in inspect.signature(fit_many).parameters if p != "unknown")

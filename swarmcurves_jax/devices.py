@@ -1,0 +1,73 @@
+"""Where a batch of curves runs: one device, or split over every device JAX can see.
+
+A :class:`Placement` says how the arrays of a batch reach the devices and come back.  The
+batch axis (curves) is split over a one-axis ``Mesh`` of the devices; the programs run
+``shard_map`` over it (``swarmcurves_jax.fit._over_curves``), so the same call uses one
+CPU, several GPUs or, after ``jax.distributed.initialize``, the devices of every host.
+Multi-host: every process calls ``fit_many`` with the same inputs; each computes its own
+devices' share and all of them return every result.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import numpy as np
+from jax.experimental import multihost_utils
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
+
+__all__ = ["Placement", "CURVES_AXIS"]
+
+#: The mesh axis the batch of curves is split along.
+CURVES_AXIS = "curves"
+
+
+class Placement(NamedTuple):
+    """``mesh``: None (the default device) or a one-axis mesh named :data:`CURVES_AXIS`;
+    ``batch``: curves vmapped together per trip of a device's loop (1: one at a time)."""
+
+    mesh: Mesh | None = None
+    batch: int = 1
+
+    @classmethod
+    def over(cls, devices=None, batch: int = 1) -> Placement:
+        """Split over ``devices`` (default: all of them, every host's); one device: no mesh."""
+        devices = list(jax.devices() if devices is None else devices)
+        if not devices:
+            raise ValueError("devices must not be empty")
+        if len(devices) == 1 and jax.process_count() == 1:
+            return cls(None, batch)
+        return cls(Mesh(np.array(devices), (CURVES_AXIS,)), batch)
+
+    @property
+    def multiple(self) -> int:
+        """The batch is padded to a multiple of this (the devices), so each gets a share."""
+        return 1 if self.mesh is None else self.mesh.size
+
+    def curves(self, tree):
+        """Host arrays with a leading curve axis, split over the devices."""
+        return self._put(tree, P(CURVES_AXIS))
+
+    def shared(self, tree):
+        """Host arrays every device needs whole."""
+        return self._put(tree, P())
+
+    def _put(self, tree, spec):
+        if self.mesh is None:
+            return jax.device_put(tree)
+        sharding = NamedSharding(self.mesh, spec)
+        # Every process holds the whole host array; each places the parts its devices own.
+        return jax.tree_util.tree_map(
+            lambda a: jax.make_array_from_callback(
+                np.shape(a), sharding, lambda index, a=np.asarray(a): a[index]
+            ),
+            tree,
+        )
+
+    def get(self, tree):
+        """Device arrays back to NumPy, whole, on every process."""
+        if jax.process_count() > 1:
+            return multihost_utils.process_allgather(tree, tiled=True)
+        return jax.device_get(tree)
