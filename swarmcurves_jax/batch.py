@@ -132,6 +132,7 @@ def fit_many(
                 for i, result in zip(chosen, out):
                     info = {
                         "call": call,
+                        "curves": len(chosen),
                         "bucket": len(preps[i].data),
                         "points": int(preps[i].mask.sum()),
                         "devices": place.multiple,
@@ -156,17 +157,17 @@ def padding_waste(results: Sequence[FitResult]) -> float:
 
 
 def _point_sets(point_sets) -> list:
-    if isinstance(point_sets, np.ndarray) and point_sets.ndim == 3:
-        return list(point_sets)
+    if isinstance(point_sets, np.ndarray):
+        if point_sets.ndim == 3:
+            return list(point_sets)
+        raise ValueError(
+            f"point_sets must be a list of point arrays or one (B, N, D) array, got one array "
+            f"of shape {point_sets.shape}; for a single curve call fit(points)"
+        )
     if isinstance(point_sets, (str, bytes)) or not isinstance(point_sets, Sequence):
         raise ValueError(
             "point_sets must be a list of (N, 2) or (N, 3) point arrays or one (B, N, D) "
             f"array, got {type(point_sets).__name__}"
-        )
-    if isinstance(point_sets, np.ndarray) or (len(point_sets) > 0 and np.ndim(point_sets[0]) == 1):
-        raise ValueError(
-            f"point_sets must be a list of point arrays, got one array of shape "
-            f"{np.shape(point_sets)}; for a single curve call fit(points)"
         )
     if len(point_sets) == 0:
         raise ValueError("point_sets is empty: give at least one point set")

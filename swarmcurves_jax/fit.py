@@ -527,8 +527,9 @@ def fit(
     """
     start = time.perf_counter()
     check_no_unknown(unknown, _FIT_ARGS)
-    opts = _options(**{name: value for name, value in locals().items() if name in _OPTIONS})
     closed = check_bool(closed, "closed")
+    check_pairs(cps, degrees, closed)
+    opts = _options(**{name: value for name, value in locals().items() if name in _OPTIONS})
     if callback is not None and not callable(callback):
         raise ValueError(f"callback must be callable or None, got {callback!r}")
     prep = _prepare(points, closed, opts, seed, "points")
@@ -596,8 +597,8 @@ def _options(
     max_fitness_points,
     dtype,
 ) -> _Options:
-    """Check every shared option; exact errors that name the argument."""
-    check_pairs(cps, degrees, False)
+    """Check every shared option but the counts (checked per curve: their message says
+    open or closed); exact errors that name the argument."""
     if init not in ("lsq", "uniform"):
         raise ValueError(f"init must be 'lsq' or 'uniform', got {init!r}")
     if num_samples is not None:
@@ -892,7 +893,7 @@ def _run_group(
                 stop_reason=reason,
                 seed=prep.seed_value,
                 wall_time=time.perf_counter() - start,
-                timings=dict(timings, curves=num),
+                timings=timings,
             )
         )
     return results

@@ -69,10 +69,10 @@ class FitResult:
         solutions were refined, ``"refine"`` (its compilation included); the rest of
         ``wall_time`` is the host's true-error projections.  In a batch
         (:func:`swarmcurves_jax.fit_many`) they are the seconds of the program call that
-        ran the curve together with others, and ``"curves"`` says how many.
+        ran the curve together with others (``batch["curves"]`` of them).
     batch : dict
         For :func:`swarmcurves_jax.fit_many`: ``"call"`` (which program call ran the
-        curve), ``"bucket"`` (its padded point count), ``"points"`` (its real fitness
+        curve), ``"curves"`` (how many real curves it ran), ``"bucket"`` (its padded point count), ``"points"`` (its real fitness
         points) and ``"devices"``.  Empty for :func:`swarmcurves_jax.fit`.
     """
 

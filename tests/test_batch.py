@@ -1,0 +1,221 @@
+"""fit_many: batched = one by one = sharded = multi-host, bit for bit; buckets; errors."""
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from swarmcurves_jax import fit, fit_many
+from swarmcurves_jax.batch import padding_waste
+from swarmcurves_jax.fit import _swarm_program, bucket_length
+
+OPTS = dict(cps=[4, 6], iterations=60, particles=16)
+
+
+def _sets():
+    """Curves of four lengths (three buckets), open and closed, a 3-D one apart."""
+    rng = np.random.default_rng(7)
+    out = []
+    for i, n in enumerate([70, 50, 90, 64]):
+        s = np.linspace(0, 1, n)
+        out.append(np.c_[s, np.sin(3 * s + i)] + 1e-3 * rng.normal(size=(n, 2)))
+    t = np.linspace(0, 2 * np.pi, 80, endpoint=False)
+    out.append(np.c_[np.cos(t), 0.6 * np.sin(t)])  # closed
+    out.append(np.c_[t, np.cos(t), np.sin(t)])  # 3-D
+    return out
+
+
+CLOSED = [False, False, False, False, True, False]
+SEEDS = [0, 1, 2, 3, 4, 5]
+
+
+def _same(a, b):
+    assert len(a.solutions) == len(b.solutions)
+    for x, y in zip(a.solutions, b.solutions):
+        assert np.array_equal(x.control_points, y.control_points)
+        assert np.array_equal(x.weights, y.weights) and np.array_equal(x.knots, y.knots)
+        assert x.error == y.error and x.info["refined"] == y.info["refined"]
+    assert np.array_equal(a.history, b.history)
+    assert a.stop_reason == b.stop_reason and a.seed == b.seed
+
+
+@pytest.fixture(scope="module")
+def lone():
+    return [fit(p, closed=c, seed=s, **OPTS) for p, c, s in zip(_sets(), CLOSED, SEEDS)]
+
+
+def test_batched_equals_one_by_one_bit_for_bit(lone):
+    seen = []
+    many = fit_many(
+        _sets(),
+        closed=CLOSED,
+        seed=SEEDS,
+        batch_size=2,
+        on_result=lambda i, r: seen.append(i),
+        **OPTS,
+    )
+    assert sorted(seen) == list(range(6))
+    for a, b in zip(lone, many):
+        _same(a, b)
+    assert [r.batch["bucket"] for r in many] == [80, 64, 96, 64, 80, 80]
+    assert [r.batch["points"] for r in many] == [70, 50, 90, 64, 80, 80]
+    # open 2-D at 64 points: 50 and 64 share one call; the closed and the 3-D curves
+    # are programs of their own although their bucket is the same
+    calls = [r.batch["call"] for r in many]
+    assert calls[1] == calls[3] and len(set(calls)) == 5
+    assert padding_waste(many) == pytest.approx(1 - 434 / 464)
+
+
+def test_one_compiled_program_per_bucket():
+    sets = [np.c_[np.linspace(0, 1, n), np.linspace(0, 1, n) ** 2] for n in (33, 40, 47, 60)]
+    before = _swarm_program._cache_size()
+    opts = dict(OPTS, particles=12)  # shapes no other test compiles
+    many = fit_many(sets, batch_size=2, **opts)  # buckets 48 (two calls of 2) and 64
+    assert {r.batch["bucket"] for r in many} == {48, 64}
+    assert _swarm_program._cache_size() == before + 2
+    assert [r.batch["call"] for r in many] == [0, 0, 1, 2]
+
+
+def test_tol_stops_each_curve_as_if_alone():
+    line = np.c_[np.linspace(0, 1, 40), np.linspace(0, 2, 40)]
+    wave = np.c_[np.linspace(0, 1, 40), np.sin(9 * np.linspace(0, 1, 40))]
+    opts = dict(OPTS, iterations=400, chunk_size=20, tol=1e-4)
+    many = fit_many([line, wave], **opts)
+    for points, result in zip([line, wave], many):
+        _same(fit(points, **opts), result)
+    assert many[0].stop_reason == "tol" and many[0].history.shape[1] < 400
+
+
+def _run_script(code, env_extra, timeout=300):
+    env = dict(os.environ, **env_extra)
+    out = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=timeout,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    return out.stdout
+
+
+def _solutions(results):
+    return [[(c.control_points.tolist(), c.error) for c in r.solutions] for r in results]
+
+
+def test_sharded_over_forced_host_devices_matches_and_splits_the_work(lone):
+    code = """
+        import json, jax, numpy as np
+        import tests.test_batch as tb
+        from swarmcurves_jax import fit_many
+        from swarmcurves_jax.devices import Placement
+        many = fit_many(tb._sets(), closed=tb.CLOSED, seed=tb.SEEDS, **tb.OPTS)
+        parts = Placement.over().curves(np.arange(8.0)).addressable_shards
+        print(json.dumps({
+            "devices": jax.device_count(),
+            "shards": [(str(s.device), s.data.tolist()) for s in parts],
+            "batch": [r.batch["devices"] for r in many],
+            "solutions": tb._solutions(many),
+        }))
+    """
+    flags = {"XLA_FLAGS": "--xla_force_host_platform_device_count=4", "PYTHONPATH": os.getcwd()}
+    got = json.loads(_run_script(code, flags).splitlines()[-1])
+    assert got["devices"] == 4 and got["batch"] == [4] * 6
+    assert [data for _, data in got["shards"]] == [[0, 1], [2, 3], [4, 5], [6, 7]]
+    assert len({device for device, _ in got["shards"]}) == 4
+    assert got["solutions"] == json.loads(json.dumps(_solutions(lone)))
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return s.getsockname()[1]
+
+
+def test_two_processes_through_jax_distributed_match_one(lone):
+    """The multi-host path on one machine: two processes of two CPU devices each."""
+    code = """
+        import json, sys, jax
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")
+        pid, port = int(sys.argv[1]), sys.argv[2]
+        jax.distributed.initialize(f"localhost:{port}", num_processes=2, process_id=pid)
+        import tests.test_batch as tb
+        from swarmcurves_jax import fit_many
+        many = fit_many(tb._sets(), closed=tb.CLOSED, seed=tb.SEEDS, **tb.OPTS)
+        print(json.dumps({"devices": jax.device_count(), "processes": jax.process_count(),
+                          "solutions": tb._solutions(many)}))
+    """
+    port = str(_free_port())
+    env = dict(
+        os.environ,
+        XLA_FLAGS="--xla_force_host_platform_device_count=2",
+        PYTHONPATH=os.getcwd(),
+    )
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", textwrap.dedent(code), str(pid), port],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+        for pid in (0, 1)
+    ]
+    try:
+        outs = [p.communicate(timeout=300) for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+    expected = json.loads(json.dumps(_solutions(lone)))
+    for p, (out, err) in zip(procs, outs):
+        assert p.returncode == 0, err[-3000:]
+        got = json.loads(out.splitlines()[-1])
+        assert got["devices"] == 4 and got["processes"] == 2
+        assert got["solutions"] == expected
+
+
+@given(st.integers(1, 200_000))
+def test_bucket_lengths_bound_the_padding(n):
+    b = bucket_length(n)
+    assert b >= n and b % 16 == 0
+    assert b - n < 16 if n <= 128 else (b - n) / b < 0.125
+    assert bucket_length(b) == b  # a bucket is its own bucket
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda: fit_many([]), "point_sets is empty"),
+        (lambda: fit_many(np.zeros((30, 2))), "got one array of shape (30, 2)"),
+        (lambda: fit_many("a.csv"), "point_sets must be a list"),
+        (
+            lambda: fit_many([np.random.rand(30, 2), np.full((30, 2), np.nan)], cps=4),
+            "point_sets[1] must be finite; NaN or inf in row(s) 0, 1, 2, 3, 4, ...",
+        ),
+        (
+            lambda: fit_many([np.random.rand(30, 2), np.random.rand(5, 2)], cps=[4, 8]),
+            "point_sets[1]: 5 points are too few for 8 control points",
+        ),
+        (
+            lambda: fit_many([np.random.rand(30, 2)] * 2, closed=[True]),
+            "closed must be one value or 2 values (one per point set), got 1",
+        ),
+        (lambda: fit_many([np.random.rand(30, 2)], closed=["yes"]), "closed[0] must be"),
+        (lambda: fit_many([np.random.rand(30, 2)], batch_size=0), "batch_size must be"),
+        (lambda: fit_many([np.random.rand(30, 2)], vmap_curves=0), "vmap_curves must be"),
+        (lambda: fit_many([np.random.rand(30, 2)], particle=3), "particle"),
+        (lambda: fit_many([np.random.rand(30, 2)], devices=[]), "devices must not be empty"),
+    ],
+)
+def test_bad_input_names_the_argument(call, message):
+    with pytest.raises(ValueError) as info:
+        call()
+    assert message in str(info.value)
