@@ -3,18 +3,26 @@
 Runs one fitting job: reads points (a file or a built-in dataset), fits every requested
 (degree, control-point count), prints the table of solutions with the best and the
 sparsest-within-tolerance marked, and writes solutions, figures and CAD exports into the
-output folder.  With no config it fits the built-in example (the paper's f4 curve) and
-only prints.  Bad configs and bad files stop the run before any work with exit code 2 and
-one line that names the key.  Ctrl-C (or SIGTERM) stops the swarm cleanly and still writes
-the best solutions found so far; every file is written atomically.
+output folder.  An ``input`` that names many curves (a folder, a glob, an ``.npz`` of
+arrays, or ``outline:*``) is fitted as one batch (:func:`swarmcurves_jax.fit_many`): one
+sub-folder of results per curve and a ``summary.csv``.  With no config it fits the
+built-in example (the paper's f4 curve) and only prints.  Bad configs and bad files stop
+the run before any work with exit code 2 and one line that names the key.  Ctrl-C (or
+SIGTERM) stops the swarm cleanly and still writes the best solutions found so far (in a
+batch: the curves finished by then); every file is written atomically.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import difflib
+import fnmatch
+import glob
+import re
 import signal
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +43,9 @@ SCHEMA = {
         "str",
         "point file (.csv/.txt/.xyz text with or without a header, or .npy; "
         "one point per row, 2 or 3 columns) or a built-in dataset: f1..f5, random_open, "
-        "random_closed, or outline:NAME (a curve of the benchmark outlines in data_dir)",
+        "random_closed, or outline:NAME (a curve of the benchmark outlines in data_dir). "
+        "Many curves, fitted as one batch: a folder of point files, a glob ('scans/*.csv'), "
+        "an .npz with one (N, D) array per curve, or outline:PATTERN ('outline:*')",
     ),
     "data_dir": (
         None,
@@ -223,27 +233,89 @@ def read_points(path: Path) -> np.ndarray:
     return np.array(rows)
 
 
+POINT_SUFFIXES = (".csv", ".txt", ".xyz", ".npy")
+
+
 def load_input(cfg) -> tuple[np.ndarray, bool, str]:
-    """``(points, closed, label)`` for the config's ``input``."""
+    """``(points, closed, label)`` for a config whose ``input`` is one curve."""
+    (one,) = load_inputs(cfg)
+    return one
+
+
+def is_batch(name: str) -> bool:
+    """Whether ``input`` names many curves: a folder, a glob, an .npz, outline:PATTERN."""
+    if name.startswith("outline:"):
+        return any(c in name for c in "*?[")
+    return Path(name).is_dir() or name.endswith(".npz") or any(c in name for c in "*?[")
+
+
+def load_inputs(cfg) -> list[tuple[np.ndarray, bool, str]]:
+    """``(points, closed, label)`` of every curve the config's ``input`` names.
+
+    Files of a folder or glob are read in sorted order; their ``closed`` is the config's
+    (default open), an outline's its own.  Labels are file stems (names, if stems clash),
+    an .npz's array names, or outline names."""
     from .datasets import BUILTIN_NAMES, builtin, outlines_path, read_outlines
 
     name = cfg["input"]
+    closed = bool(cfg["closed"])
     if name in BUILTIN_NAMES:
-        pts, closed = builtin(name)
-        return pts, closed, name
+        pts, own = builtin(name)
+        return [(pts, own, name)]
     if name.startswith("outline:"):
-        curve = name.split(":", 1)[1]
+        pattern = name.split(":", 1)[1]
         try:
             outlines = read_outlines(cfg["data_dir"])
         except FileNotFoundError as err:
             raise ConfigError(str(err)) from None
-        if curve not in outlines:
+        chosen = [c for c in outlines if fnmatch.fnmatchcase(c, pattern)]
+        if not chosen:
             raise ConfigError(
-                f"input: no outline '{curve}' in {outlines_path(cfg['data_dir'])}; "
+                f"input: no outline '{pattern}' in {outlines_path(cfg['data_dir'])}; "
                 f"have {', '.join(outlines)}"
             )
-        return outlines[curve]["points"], outlines[curve]["closed"], name
-    return read_points(Path(name)), False, name
+        batch = is_batch(name)
+        return [
+            (outlines[c]["points"], outlines[c]["closed"], c if batch else name) for c in chosen
+        ]
+    if name.endswith(".npz"):
+        return [(pts, closed, label) for label, pts in read_point_arrays(Path(name))]
+    if not is_batch(name):
+        return [(read_points(Path(name)), closed, name)]
+    if Path(name).is_dir():
+        files = sorted(f for f in Path(name).iterdir() if f.suffix in POINT_SUFFIXES)
+        where = f"folder '{name}' holds no point files ({', '.join(POINT_SUFFIXES)})"
+    else:
+        files = sorted(Path(f) for f in glob.glob(name) if Path(f).is_file())
+        where = f"no files match '{name}'"
+    if not files:
+        raise ConfigError(f"input: {where}")
+    stems = [f.stem for f in files]
+    labels = stems if len(set(stems)) == len(stems) else [f.name for f in files]
+    return [(read_points(f), closed, label) for f, label in zip(files, labels)]
+
+
+def read_point_arrays(path: Path) -> list[tuple[str, np.ndarray]]:
+    """``(name, points)`` of every array of a multi-curve .npz, in the file's order."""
+    if not path.is_file():
+        raise ConfigError(f"input: no such file '{path}'")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = [(key, np.asarray(npz[key])) for key in npz.files]
+    except Exception as exc:
+        raise ConfigError(f"input: cannot read '{path}' as .npz: {exc}") from None
+    if not arrays:
+        raise ConfigError(f"input: '{path}' holds no arrays")
+    for key, arr in arrays:
+        if arr.ndim != 2 or arr.shape[1] not in (2, 3) or not np.issubdtype(arr.dtype, np.number):
+            raise ConfigError(
+                f"input: {path}['{key}']: expected a numeric (N, 2) or (N, 3) array, got "
+                f"{arr.dtype} {arr.shape}"
+            )
+        bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
+        if len(bad):
+            raise ConfigError(f"input: {path}['{key}']: row {bad[0]} holds NaN or inf")
+    return [(key, arr.astype(float)) for key, arr in arrays]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -400,50 +472,62 @@ def _sigterm_to_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+def fit_options(cfg, progress: bool) -> dict:
+    """The keyword arguments of ``fit`` / ``fit_many`` that the config sets."""
+    from . import PSOParams
+
+    params = PSOParams(
+        cfg["inertia"],
+        cfg["cognitive"],
+        cfg["social"],
+        cfg["v_max"],
+        float("inf") if cfg["patience"] is None else float(cfg["patience"]),
+    )
+    return dict(
+        cps=cfg["cps"],
+        degrees=cfg["degrees"],
+        rational=cfg["rational"],
+        fix_ends=cfg["fix_ends"],
+        init=cfg["init"],
+        refine=False if cfg["refine"] == "none" else cfg["refine"],
+        free_knots=cfg["free_knots"],
+        particles=cfg["particles"],
+        iterations=cfg["iterations"],
+        tol=cfg["tol"],
+        seed=cfg["seed"],
+        params=params,
+        progress=progress,
+    )
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         cfg = load_config(args)
-        points, closed, label = load_input(cfg)
+        curves = load_inputs(cfg)
         if cfg["closed"] is not None:
-            closed = cfg["closed"]
+            curves = [(pts, cfg["closed"], label) for pts, _, label in curves]
         out = Path(cfg["out"]) if cfg["out"] else None
         pairs = [(k, n) for k in sorted(cfg["degrees"]) for n in sorted(cfg["cps"])]
+        batch = is_batch(cfg["input"])
         if out is not None and not args.force:
-            clash = [f for f in planned_files(cfg, pairs) if (out / f).exists()]
+            planned = planned_files(cfg, pairs)
+            if batch:
+                planned = [SUMMARY] + [f"{slug(c[2])}/{f}" for c in curves for f in planned]
+            clash = [f for f in planned if (out / f).exists()]
             if clash:
                 raise ConfigError(
                     f"out: '{out}' already holds {', '.join(clash[:3])} from an earlier "
                     "run; pass --force to replace, or choose another folder"
                 )
-        from . import PSOParams, fit
+        if batch:
+            return run_batch(cfg, curves, out, fit_options(cfg, not args.quiet))
+        from . import fit
 
-        params = PSOParams(
-            cfg["inertia"],
-            cfg["cognitive"],
-            cfg["social"],
-            cfg["v_max"],
-            float("inf") if cfg["patience"] is None else float(cfg["patience"]),
-        )
+        ((points, closed, label),) = curves
         previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
         try:
-            result = fit(
-                points,
-                cps=cfg["cps"],
-                degrees=cfg["degrees"],
-                closed=closed,
-                rational=cfg["rational"],
-                fix_ends=cfg["fix_ends"],
-                init=cfg["init"],
-                refine=False if cfg["refine"] == "none" else cfg["refine"],
-                free_knots=cfg["free_knots"],
-                particles=cfg["particles"],
-                iterations=cfg["iterations"],
-                tol=cfg["tol"],
-                seed=cfg["seed"],
-                params=params,
-                progress=not args.quiet,
-            )
+            result = fit(points, closed=closed, **fit_options(cfg, not args.quiet))
         finally:
             signal.signal(signal.SIGTERM, previous)
     except ConfigError as exc:
@@ -477,6 +561,112 @@ def main(argv=None) -> int:
         for path in write_outputs(cfg, result, np.asarray(result.points), out):
             print(f"wrote {path}")
     return 0
+
+
+SUMMARY = "summary.csv"
+SUMMARY_COLUMNS = (
+    "input",
+    "points",
+    "closed",
+    "best_degree",
+    "best_n",
+    "best_error",
+    "best_pct_diag",
+    "sparsest_degree",
+    "sparsest_n",
+    "sparsest_error",
+    "stop_reason",
+    "bucket",
+    "call",
+    "folder",
+)
+
+
+def slug(label: str) -> str:
+    """A folder name for a curve's label: letters, digits, '-', '_' and '.' kept."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in label) or "curve"
+
+
+def summary_row(cfg, label, closed, result) -> dict:
+    best, sparsest = result.best, result.sparsest(cfg["select_pct_diag"])
+    return {
+        "input": label,
+        "points": len(result.points),
+        "closed": closed,
+        "best_degree": best.degree,
+        "best_n": best.n_ctrl,
+        "best_error": f"{best.error:.6e}",
+        "best_pct_diag": f"{best.error_pct_diag:.6f}",
+        "sparsest_degree": "" if sparsest is None else sparsest.degree,
+        "sparsest_n": "" if sparsest is None else sparsest.n_ctrl,
+        "sparsest_error": "" if sparsest is None else f"{sparsest.error:.6e}",
+        "stop_reason": result.stop_reason,
+        "bucket": result.batch["bucket"],
+        "call": result.batch["call"],
+        "folder": slug(label),
+    }
+
+
+def run_batch(cfg, curves, out: Path | None, options: dict) -> int:
+    """Fit every curve as one batch; write each curve's results as soon as it is done,
+    then ``summary.csv`` (also after Ctrl-C, for the curves finished by then)."""
+    from . import fit_many
+    from .batch import padding_waste
+
+    labels = [label for _, _, label in curves]
+    folders = [slug(label) for label in labels]
+    dup = sorted({f for f in folders if folders.count(f) > 1})
+    if dup:
+        raise ConfigError(f"input: curves {', '.join(dup)} would share a result folder")
+    rows: dict[int, dict] = {}
+    results = {}
+
+    def done(i, result):
+        results[i] = result
+        rows[i] = summary_row(cfg, labels[i], curves[i][1], result)
+        if out is not None:
+            write_outputs(cfg, result, np.asarray(result.points), out / folders[i])
+
+    previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
+    interrupted, start = False, time.perf_counter()
+    try:
+        fit_many(
+            [pts for pts, _, _ in curves],
+            closed=[c for _, c, _ in curves],
+            on_result=done,
+            **options,
+        )
+    except KeyboardInterrupt:
+        interrupted = True
+    except ValueError as exc:  # name the curve as the user knows it, not by its index
+        message = re.sub(r"point_sets\[(\d+)\]", lambda m: f"'{labels[int(m[1])]}'", str(exc))
+        raise ValueError(message) from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    order = sorted(rows)
+    table = [[str(rows[i][c]) for c in SUMMARY_COLUMNS[:-2]] for i in order]
+    heads = list(SUMMARY_COLUMNS[:-2])
+    widths = [max([len(h)] + [len(r[j]) for r in table]) for j, h in enumerate(heads)]
+    for line in [heads] + table:
+        print("  ".join(cell.rjust(w) for cell, w in zip(line, widths)))
+    if results:
+        waste = padding_waste([results[i] for i in order])
+        print(
+            f"{len(order)} of {len(curves)} curves in {time.perf_counter() - start:.1f} s; "
+            f"padding: {100 * waste:.1f} % of the fitness's point slots"
+        )
+    if interrupted:
+        print(f"interrupted: {len(order)} of {len(curves)} curves finished", file=sys.stderr)
+    if out is not None and rows:
+        from .export import atomic_write
+
+        out.mkdir(parents=True, exist_ok=True)
+        with atomic_write(out / SUMMARY, "w") as fh:
+            writer = csv.DictWriter(fh, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
+            writer.writeheader()
+            writer.writerows(rows[i] for i in order)
+        print(f"wrote {out / SUMMARY} and {len(order)} result folders")
+    return 130 if interrupted and not rows else 0
 
 
 if __name__ == "__main__":

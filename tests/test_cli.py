@@ -1,5 +1,6 @@
 """The command line end to end (subprocess, temp folders), and its refusals (exit code 2)."""
 
+import csv
 import json
 import re
 import signal
@@ -213,3 +214,87 @@ def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig
     curves = read_solutions(tmp_path / "o" / "solutions.json")
     assert len(curves) == 7 and all(np.isfinite(c.error) for c in curves)
     assert not list((tmp_path / "o").glob(".*.part"))
+
+
+def _write_curves(folder):
+    """Three point files: two open 2-D curves of different lengths and a 3-D helix."""
+    folder.mkdir()
+    s = np.linspace(0, 1, 50)
+    np.savetxt(folder / "arc.csv", np.c_[s, s**2], delimiter=",", header="x,y", comments="")
+    np.savetxt(folder / "wave.txt", np.c_[s[:40], np.sin(4 * s[:40])])
+    np.save(folder / "helix.npy", np.c_[np.cos(4 * s), np.sin(4 * s), s])
+    (folder / "notes.md").write_text("not points")
+    return ["arc", "helix", "wave"]
+
+
+BATCH_ARGS = ("--cps", "4-5", "--iterations", "30", "--particles", "16", "--quiet")
+
+
+def test_batch_folder_writes_a_result_per_curve_and_a_summary(tmp_path, capsys):
+    names = _write_curves(tmp_path / "scans")
+    out = tmp_path / "o"
+    assert main(["--input", str(tmp_path / "scans"), *BATCH_ARGS, "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "3 of 3 curves in" in printed and "padding:" in printed
+    with open(out / "summary.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["input"] for r in rows] == names
+    assert [int(r["points"]) for r in rows] == [50, 50, 40]
+    assert [r["bucket"] for r in rows] == ["64", "64", "48"]
+    for row in rows:
+        curves = read_solutions(out / row["folder"] / "solutions.json")
+        assert [c.n_ctrl for c in curves] == [4, 5]
+        assert float(row["best_error"]) == pytest.approx(min(c.error for c in curves), rel=1e-6)
+        assert curves[0].dim == (3 if row["input"] == "helix" else 2)
+    # the same run again is refused before any work; a glob picks its files only
+    assert main(["--input", str(tmp_path / "scans"), *BATCH_ARGS, "--out", str(out)]) == 2
+    assert "already holds summary.csv" in capsys.readouterr().err
+    glob_out = tmp_path / "g"
+    pattern = str(tmp_path / "scans" / "*.csv")
+    assert main(["--input", pattern, *BATCH_ARGS, "--out", str(glob_out)]) == 0
+    assert sorted(p.name for p in glob_out.iterdir()) == ["arc", "summary.csv"]
+
+
+def test_batch_from_one_npz_and_from_an_outline_pattern(tmp_path, capsys):
+    s = np.linspace(0, 1, 50)
+    np.savez(tmp_path / "set.npz", left=np.c_[s, s**2], right=np.c_[s, 1 - s**2])
+    assert main(["--input", str(tmp_path / "set.npz"), *BATCH_ARGS]) == 0
+    printed = capsys.readouterr().out
+    assert "left" in printed and "right" in printed and "2 of 2 curves" in printed
+    (tmp_path / "outlines").mkdir()
+    ring = np.c_[np.cos(np.linspace(0, 6, 60)), np.sin(np.linspace(0, 6, 60))]
+    np.savez(
+        tmp_path / "outlines" / "outlines.npz",
+        ring_points=ring,
+        ring_closed=np.array(True),
+        rim_points=ring[:40],
+        rim_closed=np.array(False),
+    )
+    args = ["--input", "outline:r*", *BATCH_ARGS, "--out", str(tmp_path / "o")]
+    (tmp_path / "job.yaml").write_text(f"data_dir: {tmp_path}\n")
+    assert main([str(tmp_path / "job.yaml"), *args]) == 0
+    with open(tmp_path / "o" / "summary.csv") as fh:
+        rows = {r["input"]: r for r in csv.DictReader(fh)}
+    assert rows["ring"]["closed"] == "True" and rows["rim"]["closed"] == "False"
+
+
+def test_bad_batch_inputs_exit_2_naming_the_file(tmp_path):
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "mixed").mkdir()
+    (tmp_path / "mixed" / "ok.txt").write_text("0 0\n1 1\n2 0\n3 1\n4 0\n5 1\n")
+    (tmp_path / "mixed" / "bad.txt").write_text("0 0\n1 x\n")
+    (tmp_path / "short").mkdir()
+    (tmp_path / "short" / "tiny.txt").write_text("0 0\n1 1\n2 0\n")
+    np.savez(tmp_path / "flat.npz", a=np.zeros(5))
+    cases = [
+        (tmp_path / "empty", "folder '" + str(tmp_path / "empty") + "' holds no point files"),
+        (tmp_path / "nothing*.csv", "no files match"),
+        (tmp_path / "mixed", "bad.txt:2: not a number"),
+        (tmp_path / "flat.npz", "flat.npz['a']: expected a numeric (N, 2) or (N, 3) array"),
+        (tmp_path / "short", "'tiny': 3 points are too few for 10 control points"),
+    ]
+    for where, message in cases:
+        proc = run("--input", str(where), "--quiet", "--out", str(tmp_path / "o"), timeout=120)
+        assert proc.returncode == 2, (where, proc.stderr)
+        assert message in proc.stderr and proc.stderr.count("\n") == 1, (where, proc.stderr)
+        assert not (tmp_path / "o").exists()
