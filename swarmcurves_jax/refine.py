@@ -102,7 +102,7 @@ def levenberg_marquardt(
         a = (jac * w[:, None]).T @ jac
         g = jac.T @ (w * d)
         a = a + mu * (jnp.diag(jnp.diag(a)) + 1e-9 * eye) + jnp.diag(1.0 - free)
-        x_new = jnp.clip(x - jnp.linalg.solve(a, g), lower, upper)
+        x_new = jnp.clip(x - spd_solve(a, g), lower, upper)
         aux_new = search(x_new)
         d_new = residuals(x_new, aux_new)
         ok = jnp.sum(w * d_new**2) < jnp.sum(w * d**2)  # NaN compares False
@@ -118,6 +118,36 @@ def levenberg_marquardt(
     init = (x0, aux0, jnp.asarray(1e-3, x0.dtype), best0)
     (_, _, _, best), _ = jax.lax.scan(body, init, stages)
     return best
+
+
+def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
+    """``a^-1 b`` for a symmetric positive definite ``a`` (LM's damped normal equations),
+    by a Cholesky factorisation written in plain JAX.
+
+    Not ``jnp.linalg.solve``: on XLA:CPU its batched LAPACK kernel fans the batch out into
+    the intra-op thread pool and blocks a pool thread waiting for it, which deadlocks when
+    several CPU devices (``fit_many`` over forced host devices) hold every pool thread.
+    A matrix that is not positive definite gives NaN, which the caller rejects as a step.
+    """
+    n = a.shape[0]
+    idx = jnp.arange(n)
+
+    def column(j, low):
+        col = a[:, j] - low @ low[j]  # columns >= j of `low` are still zero
+        d = jnp.sqrt(col[j])
+        return low.at[:, j].set(jnp.where(idx > j, col / d, jnp.where(idx == j, d, 0.0)))
+
+    low = jax.lax.fori_loop(0, n, column, jnp.zeros_like(a))
+    diag = jnp.diagonal(low)
+    y = jax.lax.fori_loop(
+        0, n, lambda i, y: y.at[i].set((b[i] - low[i] @ y) / diag[i]), jnp.zeros_like(b)
+    )
+    return jax.lax.fori_loop(
+        0,
+        n,
+        lambda k, x: x.at[n - 1 - k].set((y[n - 1 - k] - low[:, n - 1 - k] @ x) / diag[n - 1 - k]),
+        jnp.zeros_like(b),
+    )
 
 
 def _keep_better(ok, x, d, mean, score, best):
