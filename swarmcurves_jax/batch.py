@@ -23,7 +23,7 @@ import numpy as np
 from . import pso
 from ._validation import check_bool, check_no_unknown, check_positive_int
 from .devices import Placement
-from .fit import _OPTIONS, _options, _prepare, _run_group, group_key
+from .fit import _OPTIONS, _collect, _launch, _options, _prepare, group_key
 from .results import FitResult
 
 __all__ = ["fit_many", "padding_waste"]
@@ -96,8 +96,10 @@ def fit_many(
     check_no_unknown(unknown, _FIT_MANY_ARGS)
     sets = _point_sets(point_sets)
     num = len(sets)
+    each = isinstance(closed, (list, tuple, np.ndarray))
     closed_flags = [
-        check_bool(c, f"closed[{i}]") for i, c in enumerate(_per_curve(closed, num, "closed"))
+        check_bool(c, f"closed[{i}]" if each else "closed")
+        for i, c in enumerate(_per_curve(closed, num, "closed"))
     ]
     seeds = _per_curve(seed, num, "seed")
     if on_result is not None and not callable(on_result):
@@ -120,33 +122,48 @@ def fit_many(
     per_call = batch_size or 32 * place.multiple
     results: list[FitResult | None] = [None] * num
     bar = _progress_bar(num) if opts.progress else None
-    call = 0
+
+    def finish(chosen, launched, call):
+        """Collect a call's results (host projections) while the next call runs."""
+        for i, result in zip(chosen, _collect(launched)):
+            info = {
+                "call": call,
+                "curves": len(chosen),
+                "bucket": len(preps[i].data),
+                "points": int(preps[i].mask.sum()),
+                "devices": place.multiple,
+            }
+            results[i] = dataclasses.replace(result, batch=info)
+            if on_result is not None:
+                on_result(i, results[i])
+        if bar is not None:
+            bar.update(len(chosen))
+
+    # A pipeline: call c + 1 is built (its least-squares seeds) and queued on the devices
+    # before the host collects call c, so host and device work overlap.
+    previous = None
     try:
-        for members in groups.values():
-            calls = math.ceil(len(members) / per_call)
-            size = math.ceil(len(members) / calls)
-            size += -size % place.multiple
-            for part in range(calls):
-                chosen = members[part * size : (part + 1) * size]
-                out = _run_group([preps[i] for i in chosen], opts, place=place, size=size)
-                for i, result in zip(chosen, out):
-                    info = {
-                        "call": call,
-                        "curves": len(chosen),
-                        "bucket": len(preps[i].data),
-                        "points": int(preps[i].mask.sum()),
-                        "devices": place.multiple,
-                    }
-                    results[i] = dataclasses.replace(result, batch=info)
-                    if on_result is not None:
-                        on_result(i, results[i])
-                call += 1
-                if bar is not None:
-                    bar.update(len(chosen))
+        for call, (chosen, size) in enumerate(_calls(groups, per_call, place.multiple)):
+            curves = [preps[i] for i in chosen]
+            launched = _launch(curves, opts, place=place, size=size, sync=False)
+            if previous is not None:
+                finish(*previous)
+            previous = (chosen, launched, call)
+        finish(*previous)
     finally:
         if bar is not None:
             bar.close()
     return results
+
+
+def _calls(groups: dict, per_call: int, multiple: int):
+    """The curve indices of every program call: a group split into calls of equal size
+    (at most ``per_call``, a multiple of the devices), so it compiles once."""
+    for members in groups.values():
+        size = math.ceil(len(members) / math.ceil(len(members) / per_call))
+        size += -size % multiple  # every device gets a share
+        for part in range(math.ceil(len(members) / size)):
+            yield members[part * size : (part + 1) * size], size
 
 
 def padding_waste(results: Sequence[FitResult]) -> float:

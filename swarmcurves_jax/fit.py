@@ -652,14 +652,15 @@ class _Prepared(NamedTuple):
     groups: tuple | None
     data: np.ndarray  # the fitness's points (at most max_fitness_points), padded
     mask: np.ndarray  # 1 on real points, 0 on padding
-    boxes: pso.Box
-    seeds: np.ndarray
+    fit_pts: np.ndarray  # the fitness's points, unpadded (float64, in dtype's precision)
+    ends: np.ndarray | None  # pinned end points of an open curve
     key_data: np.ndarray
     seed_value: int | None  # for reports
 
 
 def _prepare(points, closed: bool, opts: _Options, seed, name: str) -> _Prepared:
-    """Validate and normalise one curve's points and build its swarms' boxes and seeds.
+    """Validate and normalise one curve's points (cheap: the least-squares seeds are
+    built when its program call is launched, so a batch overlaps them with device work).
 
     ``name`` is how errors call the points (``points``, ``point_sets[3]``).
     """
@@ -717,8 +718,8 @@ def _prepare(points, closed: bool, opts: _Options, seed, name: str) -> _Prepared
         groups=_degree_groups(pairs) if opts.free_knots else None,
         data=np.concatenate([fit_pts, np.repeat(fit_pts[-1:], pad, axis=0)]).astype(dtype),
         mask=np.r_[np.ones(len(fit_pts)), np.zeros(pad)].astype(dtype),
-        boxes=_boxes(pairs, space, opts.weight_bounds, ends, dtype),
-        seeds=_seeds(pairs, space, fit_pts, closed, ends, dtype),
+        fit_pts=fit_pts,
+        ends=ends,
         key_data=np.asarray(jax.random.key_data(root_key)),
         seed_value=int(seed) if isinstance(seed, (int, np.integer)) else None,
     )
@@ -729,7 +730,28 @@ def group_key(prep: _Prepared) -> tuple:
     return prep.space, prep.groups, len(prep.data)
 
 
-def _run_group(
+def _run_group(preps, opts: _Options, **kwargs) -> list[FitResult]:
+    """Run curves of one shape bucket as one program call and wait for the results."""
+    return _collect(_launch(preps, opts, **kwargs))
+
+
+class _Launched(NamedTuple):
+    """A program call in flight: its device arrays and what the host needs to finish it."""
+
+    preps: list
+    opts: _Options
+    place: Placement
+    state: pso.PSOState
+    refined: tuple | None
+    history: list
+    stop_reason: str
+    stopped: np.ndarray
+    done: int
+    start: float
+    timings: dict
+
+
+def _launch(
     preps,
     opts: _Options,
     *,
@@ -739,13 +761,16 @@ def _run_group(
     place=Placement(),
     size=None,
     start=None,
-) -> list[FitResult]:
-    """Run curves of one shape bucket (equal :func:`group_key`) as one program call.
+    sync=True,
+) -> _Launched:
+    """Launch curves of one shape bucket (equal :func:`group_key`) as one program call.
 
     Every array gets a leading curve axis.  The batch is padded with copies of its first
     curve (their results dropped) to ``size`` curves (default: a multiple of the devices,
     ``place.multiple``), so equal calls reuse one compiled program.
-    ``callback(iteration, best (curves, solutions))`` runs after every chunk.
+    ``callback(iteration, best (curves, solutions))`` runs after every chunk.  With
+    ``sync`` the swarm is waited for before the refinement, to time each; without, both are
+    queued and this returns at once (unless ``tol`` needs the swarm's progress).
     """
     start = time.perf_counter() if start is None else start
     first = preps[0]
@@ -764,9 +789,17 @@ def _run_group(
         jnp.dtype(dtype).itemsize,
     )
     stack = lambda field: np.stack([getattr(p, field) for p in padded])  # noqa: E731
-    boxes = pso.Box(*(np.stack(parts) for parts in zip(*(p.boxes for p in padded))))
+    built = {}  # the padding repeats the first curve: build its seeds once
+    for p in padded:
+        if id(p) not in built:
+            built[id(p)] = (
+                _boxes(pairs, space, opts.weight_bounds, p.ends, dtype),
+                _seeds(pairs, space, p.fit_pts, p.closed, p.ends, dtype),
+            )
+    boxes = pso.Box(*(np.stack(parts) for parts in zip(*(built[id(p)][0] for p in padded))))
+    seeds = np.stack([built[id(p)][1] for p in padded])
     state = _empty_state(len(padded), len(pairs), opts.particles, space.size, dtype)
-    per_curve = (state, boxes, stack("seeds"), stack("data"), stack("mask"), stack("key_data"))
+    per_curve = (state, boxes, seeds, stack("data"), stack("mask"), stack("key_data"))
     state, boxes, seeds, data, mask, keys = place.curves(per_curve)
     bases = _stack_bases(pairs, space.closed, space.rational, space.num_samples, space.n_pad, dtype)
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
@@ -834,29 +867,46 @@ def _run_group(
     if not history:
         raise KeyboardInterrupt
 
-    swarm = place.get((state.best_position, state.best_fitness, state.step))
-    swarm_done = time.perf_counter()
-    timings = {"swarm": swarm_done - start}
+    timings = {}
+    if sync:
+        place.get(state.best_fitness)
+        timings["swarm"] = time.perf_counter() - start
     refined = None
     if opts.method is not None and stop_reason != "interrupted":
-        refined = place.get(
-            _refine_program(
-                state,
-                boxes,
-                seeds,
-                data,
-                mask,
-                (pair_ids, bases),
-                space=space,
-                method=opts.method,
-                seeded=seeded,
-                groups=groups,
-                mesh=place.mesh,
-                batch=place.batch,
-            )
+        refined = _refine_program(
+            state,
+            boxes,
+            seeds,
+            data,
+            mask,
+            (pair_ids, bases),
+            space=space,
+            method=opts.method,
+            seeded=seeded,
+            groups=groups,
+            mesh=place.mesh,
+            batch=place.batch,
         )
-        timings["refine"] = time.perf_counter() - swarm_done
-    history = np.concatenate(place.get(history), axis=2)[:num, :, :iterations]
+    return _Launched(
+        preps, opts, place, state, refined, history, stop_reason, stopped, done, start, timings
+    )
+
+
+def _collect(run: _Launched) -> list[FitResult]:
+    """Wait for a launched call and build its results on the host (true projections)."""
+    preps, opts, place, state = run.preps, run.opts, run.place, run.state
+    first = preps[0]
+    space, pairs = first.space, first.pairs
+    iterations, stopped, done = opts.iterations, run.stopped, run.done
+    swarm = place.get((state.best_position, state.best_fitness, state.step))
+    refined = None if run.refined is None else place.get(run.refined)
+    timings = dict(run.timings)
+    if "swarm" in timings:
+        if refined is not None:
+            timings["refine"] = time.perf_counter() - run.start - timings["swarm"]
+    else:
+        timings["call"] = time.perf_counter() - run.start  # swarm and refine, queued
+    history = np.concatenate(place.get(run.history), axis=2)
     results = []
     for b, prep in enumerate(preps):
         candidates = [[(swarm[0][b, i], float(swarm[1][b, i]), False)] for i in range(len(pairs))]
@@ -881,7 +931,9 @@ def _run_group(
         ]
         # What the curve would have reported alone: a lone fit stops after the chunk in
         # which it reaches tol.
-        reason = "tol" if stopped[b] >= 0 and stop_reason != "interrupted" else stop_reason
+        reason = run.stop_reason
+        if stopped[b] >= 0 and reason != "interrupted":
+            reason = "tol"
         ran = min(stopped[b] if stopped[b] >= 0 else done, iterations)
         results.append(
             FitResult(
@@ -892,7 +944,7 @@ def _run_group(
                 history=history[b, :, :ran].astype(np.float64),
                 stop_reason=reason,
                 seed=prep.seed_value,
-                wall_time=time.perf_counter() - start,
+                wall_time=time.perf_counter() - run.start,
                 timings=timings,
             )
         )

@@ -68,12 +68,14 @@ class FitResult:
         Seconds per stage: ``"swarm"`` (setup, compilation and the swarm) and, when the
         solutions were refined, ``"refine"`` (its compilation included); the rest of
         ``wall_time`` is the host's true-error projections.  In a batch
-        (:func:`swarmcurves_jax.fit_many`) they are the seconds of the program call that
-        ran the curve together with others (``batch["curves"]`` of them).
+        (:func:`swarmcurves_jax.fit_many`) the swarm and the refinement are queued
+        together, so there is one ``"call"``: the seconds from launching the program call
+        that ran the curve (with ``batch["curves"]`` others) to its results.
     batch : dict
         For :func:`swarmcurves_jax.fit_many`: ``"call"`` (which program call ran the
-        curve), ``"curves"`` (how many real curves it ran), ``"bucket"`` (its padded point count), ``"points"`` (its real fitness
-        points) and ``"devices"``.  Empty for :func:`swarmcurves_jax.fit`.
+        curve), ``"curves"`` (how many real curves it ran), ``"bucket"`` (its padded
+        point count), ``"points"`` (its real fitness points) and ``"devices"``.  Empty for
+        :func:`swarmcurves_jax.fit`.
     """
 
     solutions: list[Curve]
