@@ -189,15 +189,7 @@ def read_points(path: Path) -> np.ndarray:
             arr = np.load(path, allow_pickle=False)
         except Exception as exc:
             raise ConfigError(f"input: cannot read '{path}' as .npy: {exc}") from None
-        if arr.ndim != 2 or arr.shape[1] not in (2, 3) or not np.issubdtype(arr.dtype, np.number):
-            raise ConfigError(
-                f"input: {path}: expected a numeric (N, 2) or (N, 3) array, got "
-                f"{arr.dtype} {arr.shape}"
-            )
-        bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
-        if len(bad):
-            raise ConfigError(f"input: {path}: row {bad[0]} holds NaN or inf")
-        return arr.astype(float)
+        return _checked_array(arr, f"{path}")
     rows, width = [], None
     try:
         with open(path, encoding="utf-8") as fh:
@@ -306,16 +298,20 @@ def read_point_arrays(path: Path) -> list[tuple[str, np.ndarray]]:
         raise ConfigError(f"input: cannot read '{path}' as .npz: {exc}") from None
     if not arrays:
         raise ConfigError(f"input: '{path}' holds no arrays")
-    for key, arr in arrays:
-        if arr.ndim != 2 or arr.shape[1] not in (2, 3) or not np.issubdtype(arr.dtype, np.number):
-            raise ConfigError(
-                f"input: {path}['{key}']: expected a numeric (N, 2) or (N, 3) array, got "
-                f"{arr.dtype} {arr.shape}"
-            )
-        bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
-        if len(bad):
-            raise ConfigError(f"input: {path}['{key}']: row {bad[0]} holds NaN or inf")
-    return [(key, arr.astype(float)) for key, arr in arrays]
+    return [(key, _checked_array(arr, f"{path}['{key}']")) for key, arr in arrays]
+
+
+def _checked_array(arr: np.ndarray, where: str) -> np.ndarray:
+    """A loaded array as float points, or a ConfigError naming ``where`` and the fault."""
+    if arr.ndim != 2 or arr.shape[1] not in (2, 3) or not np.issubdtype(arr.dtype, np.number):
+        raise ConfigError(
+            f"input: {where}: expected a numeric (N, 2) or (N, 3) array, got "
+            f"{arr.dtype} {arr.shape}"
+        )
+    bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
+    if len(bad):
+        raise ConfigError(f"input: {where}: row {bad[0]} holds NaN or inf")
+    return arr.astype(float)
 
 
 def build_parser() -> argparse.ArgumentParser:
