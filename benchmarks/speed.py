@@ -18,7 +18,7 @@ What it measures, all with ``refine=False`` (the swarm alone, the workload peers
   evosax runs the full 2000.  Ratios are peer time / ours (warm).
 - **Scaling** (warm seconds, min of 2, at 100 and 200 iterations, the difference scaled to
   2000): against N (100 ... 5,000 points, every point in the fitness), particles (16 ... 512),
-  swarms (1 ... 64; degree 1-4 pairs with n <= 25 and 128 samples, so every swarm costs the
+  swarms (1 ... 64; degree 2-5 pairs with n <= 25 and 128 samples, so every swarm costs the
   same) and iterations (W1 at 100 ... 2000); the cold compile time against the swarms.
 - **Memory**: peak RSS of W1 and of a 100,000-point fit, each in a fresh process.
 - **Roofline**: the fitness's FLOPs per particle-evaluation counted from its shapes, the
@@ -47,8 +47,8 @@ import numpy as np
 
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
-from swarmcurves_jax.fit import _reach, default_num_samples, normalise
-from swarmcurves_jax.fitness import SampleBasis, make_sample_basis, point_distances
+from swarmcurves_jax.fit import _degree_groups, normalise, stack_bases
+from swarmcurves_jax.fitness import NEWTON_STEPS, point_distances
 from swarmcurves_jax.pso import default_params
 
 REPO = Path(__file__).resolve().parents[1]
@@ -72,55 +72,72 @@ def timed(fn, repeats=1):
 
 # --------------------------------------------------------------------------- the fitness
 def w1_problem(dtype=np.float32):
-    """The normalised f4 points and, per W1 swarm, its sample basis (padded to n = 10)."""
+    """The normalised f4 points and, per W1 degree group, its stacked span bases (padded
+    to n = 10, as ``fit`` builds them) and the group's ``(k, first, stop)``."""
     pts = normalise(analytic_points("f4"))[0].astype(dtype)
-    samples = default_num_samples(W1_PAIRS, False)
-    bases = [make_sample_basis(n, k, False, samples, 10, _reach(k, False)) for k, n in W1_PAIRS]
-    return pts, [tuple(np.asarray(a, dtype) for a in b) for b in bases]
+    groups = _degree_groups(W1_PAIRS, False)
+    bases = [stack_bases(W1_PAIRS[i:j], False, m, 10, dtype) for _, i, j, m in groups]
+    return pts, groups, bases
 
 
-def numpy_fitness(positions, basis, points, newton_steps=3):
-    """Our fitness (fitness.point_distances: nearest tangent-segment sample, then Newton on
-    the cubic Taylor model inside the sample's span), vectorised over particles in NumPy."""
-    b0, b1, b2, b3, lo_s, hi_s, half = basis
+def numpy_fitness(positions, basis, points, k, newton_steps=NEWTON_STEPS):
+    """Our fitness (:func:`swarmcurves_jax.fitness.point_distances`: nearest tangent-segment
+    sample, then safeguarded Newton on the span's exact polynomial, extended into its
+    neighbours) for one swarm of degree ``k``, vectorised over particles in NumPy."""
     num, dim = positions.shape[0], points.shape[1]
     ctrl = positions.reshape(num, -1, dim)
-    c0, c1, c2, c3 = (np.einsum("mn,pnd->pmd", b, ctrl) for b in (b0, b1, b2, b3))
-    tang = c1 * half[None, :, None]
-    diff = points[None, :, None, :] - c0[:, None, :, :]  # (P, N, M, D)
+    n = ctrl.shape[1]
+    table, lo_s, hi_s = basis.table[:, :, :n], basis.lo, basis.hi
+    samples = np.einsum("mn,pnd->pmd", basis.sample_value[:, :n], ctrl)
+    tang = np.einsum("mn,pnd->pmd", basis.sample_tangent[:, :n], ctrl)
+    diff = points[None, :, None, :] - samples[:, None, :, :]  # (P, N, M, D)
     along = np.einsum("pnmd,pmd->pnm", diff, tang)
     len2 = np.maximum(np.sum(tang**2, axis=2), 1e-30)[:, None, :]
     s = np.clip(along / len2, -1.0, 1.0)
-    d2 = np.sum(diff**2, axis=3) - s * (2.0 * along - s * len2)
-    j = np.argmin(d2, axis=2)  # (P, N)
-    take = lambda c: np.take_along_axis(c, j[..., None], axis=1)  # noqa: E731
-    r = take(c0) - points[None]
-    d1, d2_, d3 = take(c1), take(c2), take(c3)
-    lo, hi = lo_s[j], hi_s[j]
-    delta = np.zeros_like(lo)
-    for _ in range(newton_steps):
-        dl = delta[..., None]
-        q = r + dl * (d1 + dl * (d2_ / 2 + dl * d3 / 6))
-        dq = d1 + dl * (d2_ + dl * d3 / 2)
-        ddq = d2_ + dl * d3
-        g = np.sum(q * dq, axis=2)
-        h = np.sum(dq * dq + q * ddq, axis=2)
-        to_bound = np.where(g > 0, lo, hi) - delta
-        step = np.where(h > 0, -g / np.where(h > 0, h, 1.0), to_bound)
-        delta = np.clip(delta + step, lo, hi)
-    dl = delta[..., None]
-    q = r + dl * (d1 + dl * (d2_ / 2 + dl * d3 / 6))
-    dist = np.sqrt(np.minimum(np.sum(q * q, axis=2), np.sum(r * r, axis=2)) + 1e-30)
+    j = np.argmin(np.sum(diff**2, axis=3) - s * (2.0 * along - s * len2), axis=2)  # (P, N)
+    per, spans = int(basis.per_span), int(basis.num_spans)
+    span = np.minimum(j // per, spans - 1)
+    tau = np.clip((j - span * per + 0.5) / per, 0.5 / per, 1 - 0.5 / per)
+    coef = np.einsum("srn,pnd->psrd", table, ctrl)[np.arange(num)[:, None], span]  # (P,N,R,D)
+    lo, hi = lo_s[span], hi_s[span]
+    top = table.shape[1] - 3
+
+    def curve(t):
+        tt = t[..., None]
+        v = sum(coef[:, :, r] * tt**r for r in range(top + 1))
+        d1 = sum(r * coef[:, :, r] * tt ** (r - 1) for r in range(1, top + 1))
+        d2 = sum(r * (r - 1) * coef[:, :, r] * tt ** (r - 2) for r in range(2, top + 1))
+        if k > 1:
+            past, before = tt > 1, tt < 0
+            e = np.where(past, tt - 1, np.minimum(tt, 0))
+            jump = np.where(past, coef[:, :, top + 1], coef[:, :, top + 2])
+            on = past | before
+            v = v + jump * e**k
+            d1 = d1 + np.where(on, jump * k * e ** (k - 1), 0)
+            d2 = d2 + np.where(on, jump * k * (k - 1) * e ** (k - 2), 0)
+        return v, d1, d2
+
+    start = None
+    for _ in range(1 if k == 1 else newton_steps):
+        c0, c1, c2 = curve(tau)
+        q = c0 - points[None]
+        start = q if start is None else start
+        g = np.sum(q * c1, axis=2)
+        gauss = np.sum(c1 * c1, axis=2)
+        h = np.maximum(gauss + np.sum(q * c2, axis=2), gauss)
+        tau = np.clip(tau - np.clip(g / np.maximum(h, 1e-30), -0.5, 0.5), lo, hi)
+    q2 = np.sum((curve(tau)[0] - points[None]) ** 2, axis=2)
+    dist = np.sqrt(np.minimum(q2, np.sum(start**2, axis=2)) + 1e-30)
     return dist.mean(axis=1)
 
 
-def numpy_pso(basis, points, dim, iterations, particles=64, seed=0):
+def numpy_pso(basis, points, dim, k, iterations, particles=64, seed=0):
     """The paper's PSO update (SPEC §1) with our defaults, in plain NumPy."""
     p = default_params()
     rng = np.random.default_rng(seed)
     q = rng.uniform(-1, 1, (particles, dim)).astype(np.float32)
     v = np.zeros_like(q)
-    f = numpy_fitness(q, basis, points)
+    f = numpy_fitness(q, basis, points, k)
     pbest, pbest_f = q.copy(), f.copy()
     for _ in range(iterations):
         g = pbest[np.argmin(pbest_f)]
@@ -128,13 +145,13 @@ def numpy_pso(basis, points, dim, iterations, particles=64, seed=0):
         v = p.inertia * v + p.cognitive * r1 * (pbest - q) + p.social * r2 * (g - q)
         v = np.clip(v, -p.v_max, p.v_max)
         q = q + v
-        f = numpy_fitness(q, basis, points)
+        f = numpy_fitness(q, basis, points, k)
         better = f < pbest_f
         pbest[better], pbest_f[better] = q[better], f[better]
     return float(pbest_f.min())
 
 
-def pyswarms_run(basis, points, dim, iterations, particles=64, seed=0):
+def pyswarms_run(basis, points, dim, k, iterations, particles=64, seed=0):
     import pyswarms as ps
 
     p = default_params()
@@ -147,15 +164,16 @@ def pyswarms_run(basis, points, dim, iterations, particles=64, seed=0):
         init_pos=rng.uniform(-1, 1, (particles, dim)),
     )
     cost, _ = opt.optimize(
-        lambda x: numpy_fitness(x.astype(np.float32), basis, points),
+        lambda x: numpy_fitness(x.astype(np.float32), basis, points, k),
         iters=iterations,
         verbose=False,
     )
     return float(cost)
 
 
-def evosax_program(iterations, particles=64):
-    """evosax PSO on our JAX fitness, vmapped over swarms, one jit-compiled scan."""
+def evosax_program(groups, iterations, particles=64):
+    """evosax PSO on our JAX fitness, vmapped over the swarms of each degree group (as
+    ``fit`` runs them), one jit-compiled program of scans."""
     from evosax.algorithms import PSO
 
     p = default_params()
@@ -165,27 +183,35 @@ def evosax_program(iterations, particles=64):
         inertia_coeff=p.inertia, cognitive_coeff=p.cognitive, social_coeff=p.social
     )
 
-    def fitness(pop, basis, points):
-        def one(q):
-            return jnp.mean(point_distances(q.reshape(10, 2), None, basis, points))
+    def one_swarm(key, basis, points, k):
+        def fitness(pop):
+            def one(q):
+                return jnp.mean(point_distances(q.reshape(10, 2), None, basis, points, degree=k))
 
-        return jax.vmap(one)(pop)
+            return jax.vmap(one)(pop)
 
-    def one_swarm(key, basis, points):
         k0, k1, k2 = jax.random.split(key, 3)
         pop = jax.random.uniform(k0, (particles, dim), jnp.float32, -1.0, 1.0)
-        state = es.init(k1, pop, fitness(pop, basis, points), params)
+        state = es.init(k1, pop, fitness(pop), params)
 
         def step(state, key):
             ka, kt = jax.random.split(key)
             pop, state = es.ask(ka, state, params)
-            state, _ = es.tell(kt, pop, fitness(pop, basis, points), state, params)
+            state, _ = es.tell(kt, pop, fitness(pop), state, params)
             return state, None
 
         state, _ = jax.lax.scan(step, state, jax.random.split(k2, iterations))
         return state.best_fitness
 
-    return jax.jit(jax.vmap(one_swarm, in_axes=(0, 0, None)))
+    def program(keys, bases, points):
+        return jnp.concatenate(
+            [
+                jax.vmap(lambda key, b, k=k: one_swarm(key, b, points, k))(keys[i:j], basis)
+                for (k, i, j, _), basis in zip(groups, bases)
+            ]
+        )
+
+    return jax.jit(program)
 
 
 # --------------------------------------------------------------------------- sections
@@ -217,15 +243,17 @@ def section_w1(args, report):
 
 
 def section_peers(args, report):
-    pts, bases = w1_problem()
+    pts, groups, bases = w1_problem()
     it_full, it_peer = args.iterations, args.peer_iterations
     rows = {}
 
     def per_swarm(run):
         """Seconds for one ``run`` per W1 swarm at ``it_peer`` iterations, scaled to 2000."""
         t0 = time.perf_counter()
-        for n, b in _live(bases):
-            run(b, pts, n * 2, it_peer)
+        for (k, i, j, _), basis in zip(groups, bases):
+            for s, (_, n) in enumerate(W1_PAIRS[i:j]):
+                one = jax.tree_util.tree_map(lambda a, s=s: np.asarray(a)[s], basis)
+                run(one, pts, n * 2, k, it_peer)
         return (time.perf_counter() - t0) * it_full / it_peer, True
 
     rows["NumPy (same fitness)"] = per_swarm(numpy_pso)
@@ -236,12 +264,12 @@ def section_peers(args, report):
     except ImportError:
         rows["pyswarms GlobalBestPSO"] = (math.nan, True)
     try:
-        program = evosax_program(it_full)
+        program = evosax_program(groups, it_full)
         keys = jax.random.split(jax.random.key(0), len(W1_PAIRS))
-        basis = SampleBasis(*(jnp.asarray(np.stack(parts)) for parts in zip(*bases)))
+        device_bases = jax.tree_util.tree_map(jnp.asarray, bases)
         data = jnp.asarray(pts)
         cold, warm, best = timed(
-            lambda: jax.block_until_ready(program(keys, basis, data)), args.repeats
+            lambda: jax.block_until_ready(program(keys, device_bases, data)), args.repeats
         )
         rows["evosax PSO (vmapped, our fitness)"] = warm, False
         report["evosax_cold_s"] = cold
@@ -255,14 +283,6 @@ def section_peers(args, report):
     }
     for name, r in report["peers"].items():
         print(f"{name}: {r['seconds']:.1f} s, {r['ratio']:.1f}x ours", file=sys.stderr)
-
-
-def _live(bases):
-    """``(n, basis)`` per W1 swarm, the basis without its padding columns (the NumPy peers
-    see only live coordinates)."""
-    return [
-        (n, tuple(a[:, :n] if a.ndim == 2 else a for a in b)) for (_, n), b in zip(W1_PAIRS, bases)
-    ]
 
 
 def section_scaling(args, report):
@@ -307,7 +327,7 @@ def _swarm_layout(s):
     if s <= 16:
         return range(26 - s, 26), (3,)
     per = s // 4 if s >= 64 else s // 2
-    degrees = (1, 2, 3, 4) if s >= 64 else (2, 3)
+    degrees = (2, 3, 4, 5) if s >= 64 else (2, 3)
     return range(26 - per, 26), degrees
 
 
@@ -342,15 +362,24 @@ def section_memory(args, report):
     print(f"peak RSS MiB: {out}", file=sys.stderr)
 
 
-def fitness_flops(n_pts, samples, n_pad, dim, particles, swarms, newton=3):
-    """FLOPs of one iteration of every swarm, counted from the fitness's shapes."""
-    matmuls = 4 * 2 * samples * n_pad * dim  # four basis matrices times the control points
-    search = n_pts * samples * (5 * dim + 7)  # diff, d2, along, clip, correction, min
-    newton_flops = n_pts * newton * (24 * dim + 10)  # Taylor model, gradient, Hessian, step
-    final = n_pts * (12 * dim + 4)
-    update = 12 * n_pad * dim  # the PSO update
-    per_eval = matmuls + search + newton_flops + final + update
-    return per_eval, per_eval * particles * swarms
+def fitness_flops(n_pts, groups, bases, n_pad, dim, particles):
+    """(mean FLOPs per particle-evaluation, FLOPs of one iteration of every swarm), counted
+    from the fitness's shapes; a select or a comparison counts as one operation."""
+    total, swarms = 0, 0
+    for (k, i, j, samples), basis in zip(groups, bases):
+        spans, rows = basis.table.shape[1], basis.table.shape[2]
+        top = rows - 3
+        matmuls = 2 * n_pad * dim * (2 * samples + spans * rows)  # samples, tangents, table
+        search = n_pts * samples * (5 * dim + 7)  # diff, d2, along, clip, correction, min
+        select = n_pts * spans * (rows * dim + 3)  # a where per row and column, lo, hi
+        jump = 0 if k == 1 else 25 + 8 * dim  # the neighbour's polynomial past either end
+        step = 6 * top * dim + jump + 10 * dim + 12  # Horner (3 orders), Newton update
+        steps = 1 if k == 1 else NEWTON_STEPS
+        newton = n_pts * (steps * step + 2 * top * dim + jump + 3 * dim + 4)
+        update = 12 * n_pad * dim  # the PSO update
+        total += (j - i) * particles * (matmuls + search + select + newton + update)
+        swarms += j - i
+    return total / (swarms * particles), total
 
 
 def section_roofline(args, report):
@@ -359,8 +388,9 @@ def section_roofline(args, report):
     mm = jax.jit(lambda x: x @ x)
     _, best, _ = timed(lambda: jax.block_until_ready(mm(a)), 3)  # the first call compiles
     peak = 2 * size**3 / best
-    samples = default_num_samples(W1_PAIRS, False)
-    per_eval, per_iter = fitness_flops(200, samples, 10, 2, 64, 21)
+    _, groups, bases = w1_problem()
+    samples = "/".join(str(g[3]) for g in groups)
+    per_eval, per_iter = fitness_flops(208, groups, bases, 10, 2, 64)  # 200 points padded
     warm = report["w1"]["warm_s"]
     achieved = per_iter * report["w1"]["iterations"] / warm
     report["roofline"] = {

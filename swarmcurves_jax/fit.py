@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec as P
+from scipy.spatial import cKDTree
 
 from . import pso
 from . import refine as local
@@ -31,10 +32,10 @@ from .basis import design_matrix
 from .curves import Curve
 from .devices import Placement
 from .fitness import (
-    SampleBasis,
+    SpanBasis,
     foot_samples,
     free_knot_basis,
-    make_sample_basis,
+    make_span_basis,
     point_distances,
 )
 from .knots import (
@@ -63,15 +64,31 @@ def normalise(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     return (points - center) / scale, center, scale
 
 
-def default_num_samples(pairs, closed: bool) -> int:
-    """Fitness samples per curve: about 5 per knot span, a multiple of 16, at least 48.
+#: The most fitness samples a curve may have (the search packs their index into a float).
+MAX_SAMPLES = 4096
 
-    The fitness's Newton step removes the sampling floor, so a few samples per span
-    suffice: on random cubics the fitness of the true curve is <= 2e-5 at 48 samples
-    (``tests/test_fitness.py`` checks 64), and W1 runs 23 % faster at 48 than at 64.
+
+#: Fitness search samples per knot span (a polygon's segments need one: searched exactly).
+SAMPLES_PER_SPAN = 4
+#: The refinement's samples per span: it runs a few dozen evaluations, not 2000 x 64,
+#: and polishes to the limit of float32 only from starts near each foot point (measured:
+#: a perturbed random cubic polishes to 4e-8 with 16, 1.2e-4 with 4).
+REFINE_SAMPLES_PER_SPAN = 16
+
+
+def default_num_samples(pairs, closed: bool, per_span: int = SAMPLES_PER_SPAN) -> int:
+    """Fitness search samples for swarms of one degree: ``per_span`` per knot span of the
+    one with the most spans, one per segment of a polygon, at least 8.
+
+    The samples only pick each point's span and Newton's start (:mod:`.fitness`).
+    Measured with ``benchmarks/fitness_accuracy.py`` (the fitness of curves against the
+    true projection): on smooth data (W1's least-squares curves) two per span suffice;
+    on random cubics and quadrics with loops and cusps, two per span leave the true curve
+    a fitness up to 2e-2, four 3e-3 and eight 5e-4 (the earlier 48 samples of a Taylor
+    model: 3e-3).
     """
-    spans = max(n if closed else n - k for k, n in pairs)
-    return int(max(48, 16 * math.ceil(5 * spans / 16)))
+    need = [(n if closed else n - k) * (1 if k == 1 else per_span) for k, n in pairs]
+    return int(min(MAX_SAMPLES, max(8, *need)))
 
 
 class _Space(NamedTuple):
@@ -84,7 +101,6 @@ class _Space(NamedTuple):
     rational: bool
     num_knots: int = 0
     closed: bool = False
-    num_samples: int = 0
 
     @property
     def num_ctrl(self) -> int:
@@ -97,20 +113,14 @@ class _Space(NamedTuple):
     def knot_logits(self, q):
         return q[self.size - self.num_knots :]
 
-    def basis(self, q, pair, k, fixed: SampleBasis) -> SampleBasis:
-        """The fitness's sample basis: ``fixed`` (precomputed), or from ``q``'s free knots."""
+    def basis(self, q, pair, k, fixed: SpanBasis) -> SpanBasis:
+        """The fitness's basis: ``fixed`` (precomputed), or from ``q``'s free knots (with
+        as many search samples as ``fixed``)."""
         if not self.num_knots:
             return fixed
         spans = pair[1] if self.closed else pair[1] - pair[0]
-        return free_knot_basis(
-            self.knot_logits(q),
-            spans,
-            k,
-            self.closed,
-            self.num_samples,
-            self.n_pad,
-            _reach(k, self.rational),
-        )
+        samples = fixed.sample_value.shape[0]
+        return free_knot_basis(self.knot_logits(q), spans, k, self.closed, samples, self.n_pad)
 
     def split(self, q):
         """``(ctrl (n_pad, dim), log_weights (n_pad,) or None)`` of a position (JAX or NumPy)."""
@@ -125,19 +135,21 @@ def _geometry(q, space):
 
 def _distances(q, basis, points, space, pair, k, foot=None):
     """Estimated distance of every point to the curve of position ``q``: shape (N,)."""
-    return point_distances(*_geometry(q, space), space.basis(q, pair, k, basis), points, foot)
+    basis = space.basis(q, pair, k, basis)
+    return point_distances(*_geometry(q, space), basis, points, foot, degree=k)
 
 
-def _by_degree(fn, groups, *args):
-    """``vmap(fn)`` over swarms; with free knots, per degree group (static ``k``: the
-    knot recursion's depth), concatenated.  ``groups``: ``(k, first, stop)`` slices."""
-    if groups is None:
-        return jax.vmap(functools.partial(fn, k=None))(*args)
+def _by_degree(fn, groups, bases, *args):
+    """``fn(*args_of_one_swarm, basis, k=degree)`` vmapped over the swarms of each degree
+    group, concatenated: a group's basis has its own shapes (spans, samples) and its
+    degree is static, so its fitness is specialised (a polygon's is a fraction of a
+    cubic's).  ``groups``: :func:`_degree_groups`; ``bases`` one per group.
+    """
     parts = [
         jax.vmap(functools.partial(fn, k=k))(
-            *(jax.tree_util.tree_map(lambda a, i=i, j=j: a[i:j], x) for x in args)
+            *(jax.tree_util.tree_map(lambda a, i=i, j=j: a[i:j], x) for x in args), basis
         )
-        for k, i, j in groups
+        for (k, i, j, _), basis in zip(groups, bases, strict=True)
     ]
     return jax.tree_util.tree_map(lambda *p: jnp.concatenate(p), *parts)
 
@@ -172,9 +184,20 @@ def _over_curves(fn, per_curve, shared, mesh, batch):
     return split(per_curve, shared)
 
 
+#: XLA:CPU settings of the swarm program (other backends ignore them), measured on W1
+#: (``benchmarks/bench_w1.py``): 512-bit vectors where the CPU has them (the search runs
+#: 1.5x faster on AVX-512), and no YNNPACK fusions, which split the fitness into loops
+#: that each re-read their inputs (1.5x slower).
+CPU_COMPILER_OPTIONS = {
+    "xla_cpu_prefer_vector_width": 512,
+    "xla_cpu_experimental_ynn_fusion_type": "",
+}
+
+
 @functools.partial(
     jax.jit,
     static_argnames=("space", "num_particles", "num_steps", "seeded", "groups", "mesh", "batch"),
+    compiler_options=CPU_COMPILER_OPTIONS,
 )
 def _swarm_program(
     keys,
@@ -207,7 +230,7 @@ def _swarm_program(
         root_key = jax.random.wrap_key_data(key_data)
         count = jnp.sum(mask)
 
-        def one_swarm(pair, state, box, basis, seed, k):
+        def one_swarm(pair, state, box, seed, basis, k):
             key = jax.random.fold_in(jax.random.fold_in(root_key, pair[0]), pair[1])
             init_key, run_key = jax.random.split(key)
             fresh = pso.init(init_key, box, num_particles, seed if seeded else None)
@@ -219,7 +242,7 @@ def _swarm_program(
             )
             return pso.run(run_key, state, params, box, fitness_fn, num_steps, tol, max_steps)
 
-        return _by_degree(one_swarm, groups, pairs, state, boxes, bases, seeds)
+        return _by_degree(one_swarm, groups, bases, pairs, state, boxes, seeds)
 
     per_curve = (keys, state, boxes, seeds, points, mask)
     return _over_curves(one_curve, per_curve, shared, mesh, batch)
@@ -230,7 +253,9 @@ REFINE_STARTS = 4
 
 
 @functools.partial(
-    jax.jit, static_argnames=("space", "method", "seeded", "groups", "mesh", "batch")
+    jax.jit,
+    static_argnames=("space", "method", "seeded", "groups", "mesh", "batch"),
+    compiler_options=CPU_COMPILER_OPTIONS,
 )
 def _refine_program(
     state, boxes, seeds, points, mask, shared, *, space, method, seeded, groups, mesh=None, batch=1
@@ -243,7 +268,7 @@ def _refine_program(
         pairs, bases = shared
         holdout = (jnp.arange(points.shape[0]) % local.HOLDOUT_EVERY == 2) * mask
 
-        def one_swarm(pair, state, box, basis, seed, k):
+        def one_swarm(pair, state, box, seed, basis, k):
             def residuals(q, foot):
                 return _distances(q, basis, points, space, pair, k, foot) * mask
 
@@ -261,7 +286,7 @@ def _refine_program(
             i = jnp.argmin(jnp.where(jnp.isnan(scores), jnp.inf, scores))
             return xs[i], fs[i]
 
-        return _by_degree(one_swarm, groups, pairs, state, boxes, bases, seeds)
+        return _by_degree(one_swarm, groups, bases, pairs, state, boxes, seeds)
 
     per_curve = (state, boxes, seeds, points, mask)
     return _over_curves(one_curve, per_curve, shared, mesh, batch)
@@ -358,16 +383,13 @@ def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20, t=None
     ctrl = _lsq(design_matrix(chord_parameters(points, closed), t, k, closed=closed), points, ends)
     grid = np.linspace(0.0, 1.0, 2048, endpoint=not closed)
     dense = design_matrix(grid, t, k, closed=closed)
-    p2 = np.sum(points**2, axis=1)[:, None]
     best, best_err = ctrl, np.inf
     for _ in range(rounds + 1):
-        samples = dense @ ctrl
-        d2 = p2 - 2.0 * points @ samples.T + np.sum(samples**2, axis=1)[None, :]
-        j = np.argmin(d2, axis=1)
-        err = np.mean(np.sqrt(np.maximum(d2[np.arange(len(points)), j], 0.0)))
+        dist, j = cKDTree(dense @ ctrl).query(points)  # each point's nearest grid sample
+        err = np.mean(dist)
         if err < best_err:  # a correction can also fold the parameters: keep the best
             best, best_err = ctrl, err
-        ctrl = _lsq(design_matrix(grid[j], t, k, closed=closed), points, ends)
+        ctrl = _lsq(dense[j], points, ends)
     return best
 
 
@@ -388,19 +410,17 @@ def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
     return out.astype(dtype)
 
 
-def _reach(k: int, rational: bool) -> float | None:
-    """How far the fitness's Newton step may roam, in sample spacings: a whole knot span
-    where the Taylor model is exact (non-rational, degree <= 3), else 1.5."""
-    return None if (k <= 3 and not rational) else 1.5
-
-
-def _stack_bases(pairs, closed, rational, num_samples, n_pad, dtype) -> SampleBasis:
-    """Every swarm's precomputed sample basis (fixed knots), stacked and padded."""
-    per = [
-        make_sample_basis(n, k, closed, num_samples, n_pad, reach=_reach(k, rational))
-        for k, n in pairs
-    ]
-    return SampleBasis(*(np.stack(parts).astype(dtype) for parts in zip(*per)))
+def stack_bases(pairs, closed, num_samples, n_pad, dtype) -> SpanBasis:
+    """The precomputed span bases (fixed knots) of swarms, stacked and padded alike."""
+    spans = max(n if closed else n - k for k, n in pairs)
+    top = max(k for k, _ in pairs)
+    per = [make_span_basis(n, k, closed, num_samples, n_pad, spans, top) for k, n in pairs]
+    return SpanBasis(
+        *(
+            np.stack(parts).astype(np.int32 if name in ("per_span", "num_spans") else dtype)
+            for name, parts in zip(SpanBasis._fields, zip(*per))
+        )
+    )
 
 
 def _root_key(seed) -> jax.Array:
@@ -603,6 +623,8 @@ def _options(
         raise ValueError(f"init must be 'lsq' or 'uniform', got {init!r}")
     if num_samples is not None:
         num_samples = check_positive_int(num_samples, "num_samples")
+        if num_samples > MAX_SAMPLES:
+            raise ValueError(f"num_samples must be <= {MAX_SAMPLES}, got {num_samples}")
     dtype = jnp.dtype(dtype)
     if dtype not in (jnp.float32, jnp.float64):
         raise ValueError(f"dtype must be float32 or float64, got {dtype}")
@@ -649,7 +671,7 @@ class _Prepared(NamedTuple):
     closed: bool
     pairs: list
     space: _Space
-    groups: tuple | None
+    groups: tuple
     data: np.ndarray  # the fitness's points (at most max_fitness_points), padded
     mask: np.ndarray  # 1 on real points, 0 on padding
     fit_pts: np.ndarray  # the fitness's points, unpadded (float64, in dtype's precision)
@@ -695,14 +717,18 @@ def _prepare(points, closed: bool, opts: _Options, seed, name: str) -> _Prepared
     fit_pts = fit_pts.astype(dtype).astype(np.float64)
     dim = pts.shape[1]
     degrees_used = sorted({k for k, _ in pairs})
-    num_samples = opts.num_samples or default_num_samples(pairs, closed)
+    most = max(n if closed else n - k for k, n in pairs)
+    if opts.num_samples is not None and opts.num_samples < most:
+        raise ValueError(
+            f"num_samples must be >= the most knot spans of a requested curve ({most}), "
+            f"got {opts.num_samples}"
+        )
     space = _Space(
         n_pad=n_max,
         dim=dim,
         rational=opts.rational,
         num_knots=(n_max if closed else n_max - degrees_used[0]) if opts.free_knots else 0,
         closed=closed,
-        num_samples=num_samples,
     )
     ends = fit_pts[[0, -1]] if (opts.fix_ends and not closed) else None
     length = bucket_length(len(fit_pts))
@@ -715,7 +741,7 @@ def _prepare(points, closed: bool, opts: _Options, seed, name: str) -> _Prepared
         closed=closed,
         pairs=pairs,
         space=space,
-        groups=_degree_groups(pairs) if opts.free_knots else None,
+        groups=_degree_groups(pairs, closed, opts.num_samples),
         data=np.concatenate([fit_pts, np.repeat(fit_pts[-1:], pad, axis=0)]).astype(dtype),
         mask=np.r_[np.ones(len(fit_pts)), np.zeros(pad)].astype(dtype),
         fit_pts=fit_pts,
@@ -784,7 +810,7 @@ def _launch(
         opts.particles,
         space.size,
         len(first.data),
-        space.num_samples,
+        max(g[3] for g in groups),
         space.dim,
         jnp.dtype(dtype).itemsize,
     )
@@ -801,7 +827,20 @@ def _launch(
     state = _empty_state(len(padded), len(pairs), opts.particles, space.size, dtype)
     per_curve = (state, boxes, seeds, stack("data"), stack("mask"), stack("key_data"))
     state, boxes, seeds, data, mask, keys = place.curves(per_curve)
-    bases = _stack_bases(pairs, space.closed, space.rational, space.num_samples, space.n_pad, dtype)
+    bases = tuple(
+        stack_bases(pairs[i:j], space.closed, samples, space.n_pad, dtype)
+        for _, i, j, samples in groups
+    )
+    refine_bases = tuple(
+        stack_bases(
+            pairs[i:j],
+            space.closed,
+            max(samples, default_num_samples(pairs[i:j], space.closed, REFINE_SAMPLES_PER_SPAN)),
+            space.n_pad,
+            dtype,
+        )
+        for _, i, j, samples in groups
+    )
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
     shared = (
         params,
@@ -879,7 +918,7 @@ def _launch(
             seeds,
             data,
             mask,
-            (pair_ids, bases),
+            (pair_ids, refine_bases),
             space=space,
             method=opts.method,
             seeded=seeded,
@@ -951,15 +990,19 @@ def _collect(run: _Launched) -> list[FitResult]:
     return results
 
 
-def _degree_groups(pairs) -> tuple[tuple[int, int, int], ...]:
-    """``(degree, first, stop)`` of each run of equal degrees in ``pairs`` (sorted)."""
+def _degree_groups(pairs, closed, num_samples=None) -> tuple[tuple[int, int, int, int], ...]:
+    """``(degree, first, stop, samples)`` of each run of equal degrees in ``pairs``
+    (sorted): the swarms one vmap runs, and their fitness's search samples
+    (``num_samples``, or :func:`default_num_samples` of the run)."""
     out = []
     for i, (k, _) in enumerate(pairs):
         if out and out[-1][0] == k:
             out[-1][2] = i + 1
         else:
             out.append([k, i, i + 1])
-    return tuple(tuple(g) for g in out)
+    return tuple(
+        (k, i, j, num_samples or default_num_samples(pairs[i:j], closed)) for k, i, j in out
+    )
 
 
 def _refine_method(refine) -> str | None:

@@ -1,17 +1,28 @@
-"""The swarm's fitness: mean point-to-curve distance, estimated cheaply in JAX.
+"""The swarm's fitness: mean point-to-curve distance, computed in JAX without gathers.
 
-A curve is sampled at ``M`` fixed parameters (precomputed basis matrices for the values and
-three derivatives).  Each data point takes its nearest sample, then a few Newton steps on
-the third-order Taylor model of the curve there, kept inside the sample's knot span.  Inside
-a span a B-spline of degree <= 3 *is* that cubic, so the distance is then exact up to the
-choice of span; for higher degrees and rational curves the model is trusted only ``reach``
-sample spacings away.  This removes the sampling floor of a nearest-sample distance for a
-few flops per point; the reported errors are recomputed exactly on the host
-(:mod:`swarmcurves_jax.projection`).
+Between two knots a B-spline (or the numerator and denominator of a NURBS) is one
+polynomial, so each swarm's basis is precomputed as a table: per knot span, the matrix
+that maps control points to that span's power coefficients in a local parameter
+``tau in [0, 1]``.  Adjacent spans of a degree-``k`` spline differ by a multiple of
+``(tau - knot)**k``, so two more rows per span (those jumps) extend a span's polynomial
+exactly into both neighbours.
+
+Per particle, the curve is sampled a few times per span; each data point takes the
+sample whose tangent segment is nearest (:func:`nearest_sample`), which fixes its span
+and a start parameter; then a few safeguarded Newton steps on that span's exact
+polynomial (allowed one span either way) find the foot point.  The distance is to a true
+point of the curve, so the fitness never undercuts the true mean distance; the reported
+errors are still recomputed on the host (:mod:`swarmcurves_jax.projection`).
+
+Written for XLA:CPU speed, measured on workload W1 (``benchmarks/bench_w1.py``): the
+per-point span coefficients come from a chain of ``where`` over the spans rather than a
+gather (about 2 ns per gathered element on XLA:CPU, the old fitness's largest cost), and
+everything after the search fuses into one loop over the points.
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -22,8 +33,8 @@ from .basis import basis_functions, design_matrix
 from .knots import breakpoints, knots_from_widths, make_knots, span_widths
 
 __all__ = [
-    "SampleBasis",
-    "make_sample_basis",
+    "SpanBasis",
+    "make_span_basis",
     "free_knot_basis",
     "curve_samples",
     "nearest_sample",
@@ -31,54 +42,122 @@ __all__ = [
     "foot_samples",
     "point_distances",
     "mean_distance",
+    "NEWTON_STEPS",
 ]
 
+#: Newton steps from the searched sample: measured on W1's least-squares curves, three
+#: bring the mean distance within 1e-5 (relative, median) of the true projection.
+NEWTON_STEPS = 3
 
-class SampleBasis(NamedTuple):
-    """Basis matrices at the fitness's sample parameters for one (degree, n, knots).
 
-    ``b0 .. b3``: shape (M, n_pad), values and three derivatives (zero columns pad ``n``);
-    ``lo, hi``: shape (M,), how far the parameter may move from each sample;
-    ``half_step``: shape (M,), half the parameter distance to the neighbouring samples
-    (the tangent segments of the nearest-sample search span it).
+class SpanBasis(NamedTuple):
+    """One swarm's basis as per-span polynomials, padded to ``S`` spans and ``n_pad``
+    control points (a leading swarm axis when stacked).
+
+    ``table`` (S, K + 3, n_pad): rows ``0..K`` map control points to the power
+    coefficients of span ``s`` in ``tau``; row ``K+1`` to the jump added as
+    ``(tau - 1)**k`` past the span's end, row ``K+2`` as ``tau**k`` before its start
+    (``K``: the largest degree of the program, ``k`` this swarm's).
+    ``lo, hi`` (S,): how far ``tau`` may go (into the neighbours, not past a curve end;
+    a polygon stops at its corners).  ``degree`` (K + 1,): one-hot of ``k``.
+    ``sample_value, sample_tangent`` (M, n_pad): the search samples (``per_span`` in each
+    of the ``num_spans`` spans, the rest repeating the last) and their tangents scaled to
+    half the sample spacing.
     """
 
-    b0: jax.Array
-    b1: jax.Array
-    b2: jax.Array
-    b3: jax.Array
+    table: jax.Array
     lo: jax.Array
     hi: jax.Array
-    half_step: jax.Array
+    degree: jax.Array
+    sample_value: jax.Array
+    sample_tangent: jax.Array
+    per_span: jax.Array
+    num_spans: jax.Array
 
 
-def make_sample_basis(
+def _span_basis(power, widths, num_spans, k: int, closed: bool, num_samples: int, xp):
+    """A :class:`SpanBasis` from the power coefficients ``power`` (S, K + 1, n_pad) of
+    each span and the spans' ``widths`` (S,); spans past ``num_spans`` repeat the last.
+    Written against ``xp`` (NumPy on the host, ``jax.numpy`` for free knots)."""
+    size, rows, _ = power.shape
+    s = xp.arange(size)
+    last = num_spans - 1
+    own = xp.minimum(s, last)
+    if closed:
+        nxt, prv = (own + 1) % num_spans, (own - 1) % num_spans
+        has_next = has_prev = s >= 0
+    else:
+        nxt, prv = xp.minimum(own + 1, last), xp.maximum(own - 1, 0)
+        has_next, has_prev = own < last, own > 0
+    w = widths[own]
+    lead = power[:, k, :]
+    jump_next = lead[nxt] * ((w / widths[nxt]) ** k)[:, None] - lead[own]
+    jump_prev = lead[prv] * ((w / widths[prv]) ** k)[:, None] - lead[own]
+    table = xp.concatenate(
+        [
+            power[own],
+            (jump_next * has_next[:, None])[:, None, :],
+            (jump_prev * has_prev[:, None])[:, None, :],
+        ],
+        axis=1,
+    )
+    if k == 1:  # a polygon's segments are searched exactly: its corners bound the step
+        lo, hi = xp.zeros(size), xp.ones(size)
+    else:
+        lo = xp.where(has_prev, -widths[prv] / w, 0.0)
+        hi = xp.where(has_next, 1.0 + widths[nxt] / w, 1.0)
+    # Search samples: `per` in each span at tau = (i + 1/2) / per, as a one-hot matrix
+    # over (span, power) so that free knots need no gather either.
+    per = num_samples // num_spans
+    m = xp.minimum(xp.arange(num_samples), num_spans * per - 1)
+    span = m // per
+    tau = (m - span * per + 0.5) / per
+    p = xp.arange(rows)[None, :]
+    hot = (span[:, None] == s[None, :]).astype(power.dtype)  # (M, S)
+    value = hot[:, :, None] * (tau[:, None] ** p)[:, None, :]
+    slope = hot[:, :, None] * (p * tau[:, None] ** xp.maximum(p - 1, 0) * 0.5 / per)[:, None, :]
+    flat = power[own].reshape(size * rows, -1)
+    return SpanBasis(
+        table=table,
+        lo=lo,
+        hi=hi,
+        degree=(p[0] == k).astype(power.dtype),
+        sample_value=value.reshape(num_samples, -1) @ flat,
+        sample_tangent=slope.reshape(num_samples, -1) @ flat,
+        per_span=xp.asarray(per, dtype=xp.int32),
+        num_spans=xp.asarray(num_spans, dtype=xp.int32),
+    )
+
+
+def make_span_basis(
     n: int,
     k: int,
     closed: bool,
     num_samples: int,
     n_pad: int | None = None,
-    reach: float | None = None,
-) -> SampleBasis:
-    """Host-side (NumPy float64) sample basis, zero-padded to ``n_pad`` columns.
-
-    ``reach``: how many sample spacings the Newton search may move from its sample (always
-    inside the knot span); ``None`` means the whole span, exact for degree <= 3.
-    """
+    num_spans_pad: int | None = None,
+    max_degree: int | None = None,
+) -> SpanBasis:
+    """Host-side (NumPy float64) :class:`SpanBasis` on the uniform knots of SPEC §1,
+    padded to ``n_pad`` control points, ``num_spans_pad`` spans and ``max_degree``."""
     n_pad = n if n_pad is None else n_pad
     t = make_knots(n, k, closed)
-    h = 1.0 / num_samples
-    u = (np.arange(num_samples) + 0.5) * h
-    mats = []
-    for nu in range(4):
-        b = design_matrix(u, t, k, nu=nu, closed=closed)
-        mats.append(np.pad(b, ((0, 0), (0, n_pad - n))))
     breaks = breakpoints(t)
-    span = np.clip(np.searchsorted(breaks, u, side="right") - 1, 0, len(breaks) - 2)
-    lo, hi = breaks[span] - u, breaks[span + 1] - u
-    if reach is not None:
-        lo, hi = np.maximum(lo, -reach * h), np.minimum(hi, reach * h)
-    return SampleBasis(*mats, lo, hi, np.full(num_samples, 0.5 * h))
+    spans = len(breaks) - 1
+    size = spans if num_spans_pad is None else num_spans_pad
+    rows = k + 1 if max_degree is None else max_degree + 1
+    if num_samples < spans or size < spans or rows < k + 1:
+        raise ValueError(
+            f"num_samples must be >= the {spans} knot spans of n={n}, degree {k} "
+            f"(got {num_samples}); padding must not be smaller than the basis"
+        )
+    widths = np.diff(breaks)
+    power = np.zeros((size, rows, n_pad))
+    for nu in range(k + 1):
+        b = design_matrix(breaks[:-1], t, k, nu=nu, closed=closed)  # at each span's start
+        power[:spans, nu, :n] = b * (widths**nu / math.factorial(nu))[:, None]
+    widths = np.r_[widths, np.ones(size - spans)]
+    return _span_basis(power, widths, spans, k, closed, num_samples, np)
 
 
 def free_knot_basis(
@@ -88,50 +167,48 @@ def free_knot_basis(
     closed: bool,
     num_samples: int,
     n_pad: int,
-    reach: float | None = None,
-) -> SampleBasis:
-    """:func:`make_sample_basis` for free knots, in JAX, differentiable in ``logits``.
+    max_degree: int | None = None,
+) -> SpanBasis:
+    """:func:`make_span_basis` for free knots, in JAX, differentiable in ``logits``.
 
     ``logits`` (S_pad,) place the breakpoints (:func:`~swarmcurves_jax.knots.span_widths`);
     ``num_spans`` (traced) is ``n - k`` open, ``n`` closed.  Every span gets the samples a
-    uniform span would: sample ``m`` sits at the same fraction of its span as on uniform
-    knots, so narrow spans stay covered.
+    uniform span would, so narrow spans stay covered.
     """
     logits = logits[: n_pad if closed else n_pad - k]  # the most spans n_pad columns allow
     widths = span_widths(logits, num_spans, jnp)
     t = knots_from_widths(widths, num_spans, k, closed, jnp)
-    v = (jnp.arange(num_samples) + 0.5) / num_samples * num_spans
-    span = jnp.minimum(jnp.floor(v).astype(jnp.int32), num_spans - 1)
-    start = t[span + k]
-    u = start + (v - span) * widths[span]
-    mats = [basis_functions(u, t, k, nu, span + k, jnp) for nu in range(4)]
-    if closed:  # basis function c drives control point c mod n
-        cols = jnp.arange(mats[0].shape[1]) % num_spans
-        fold = (cols[:, None] == jnp.arange(n_pad)[None, :]).astype(u.dtype)
-        mats = [b @ fold for b in mats]
-    lo, hi = start - u, t[span + k + 1] - u
-    step = widths[span] * num_spans / num_samples  # the samples' spacing in their span
-    if reach is not None:
-        lo, hi = jnp.maximum(lo, -reach * step), jnp.minimum(hi, reach * step)
-    return SampleBasis(*mats, lo, hi, 0.5 * step)
+    size = logits.shape[0]
+    own = jnp.minimum(jnp.arange(size), num_spans - 1)
+    start = t[own + k]
+    rows = []
+    for nu in range(k + 1):
+        b = basis_functions(start, t, k, nu, own + k, jnp)
+        if closed:  # basis function c drives control point c mod n
+            cols = jnp.arange(b.shape[1]) % num_spans
+            b = b @ (cols[:, None] == jnp.arange(n_pad)[None, :]).astype(b.dtype)
+        rows.append(b[:, :n_pad] * (widths[own] ** nu / math.factorial(nu))[:, None])
+    extra = (k if max_degree is None else max_degree) - k
+    rows += [jnp.zeros_like(rows[0])] * extra
+    safe = jnp.where(jnp.arange(size) < num_spans, widths, 1.0)
+    return _span_basis(jnp.stack(rows, axis=1), safe, num_spans, k, closed, num_samples, jnp)
 
 
-def curve_samples(ctrl: jax.Array, weights: jax.Array | None, basis: SampleBasis):
-    """Samples of the curve and its first three derivatives, each (M, D).
-
-    ``weights=None`` is the non-rational curve; otherwise the quotient rule applies.
-    """
-    mats = (basis.b0, basis.b1, basis.b2, basis.b3)
+def _homogeneous(ctrl: jax.Array, weights: jax.Array | None) -> jax.Array:
+    """Control points as the columns the polynomials act on: ``(w P, w)`` when rational."""
     if weights is None:
-        return tuple(b @ ctrl for b in mats)
-    wp = ctrl * weights[:, None]
-    a0, a1, a2, a3 = (b @ wp for b in mats)
-    w0, w1, w2, w3 = ((b @ weights)[:, None] for b in mats)
-    c0 = a0 / w0
-    c1 = (a1 - c0 * w1) / w0
-    c2 = (a2 - 2.0 * c1 * w1 - c0 * w2) / w0
-    c3 = (a3 - 3.0 * c2 * w1 - 3.0 * c1 * w2 - c0 * w3) / w0
-    return c0, c1, c2, c3
+        return ctrl
+    return jnp.concatenate([ctrl * weights[:, None], weights[:, None]], axis=1)
+
+
+def curve_samples(ctrl: jax.Array, weights: jax.Array | None, basis: SpanBasis):
+    """The search samples (M, D) and their tangent segments' half vectors (M, D)."""
+    if weights is None:
+        return basis.sample_value @ ctrl, basis.sample_tangent @ ctrl
+    hom = _homogeneous(ctrl, weights)
+    a, da = basis.sample_value @ hom, basis.sample_tangent @ hom
+    value = a[:, :-1] / a[:, -1:]
+    return value, (da[:, :-1] - value * da[:, -1:]) / a[:, -1:]
 
 
 _BLOCK = 128  # samples per unrolled block: larger fusions stop fusing on XLA:CPU
@@ -142,13 +219,12 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
     ``|s| <= 1``, is nearest to each point: (N,) int32.
 
     Ranking by the tangent segment rather than the sample point keeps a point on its own
-    branch where the curve moves fast and samples are sparse.  Written for XLA:CPU speed
-    (measured on W1, ``benchmarks/bench_w1.py``): ``argmin`` is a variadic reduction the CPU
-    backend does not vectorise (~40x slower), and a ``min`` over a broadcast (N, M) array
-    goes to a library kernel that materialises it.  So the index is packed into the low
-    mantissa bits of the (non-negative) squared distance and the minimum is an unrolled
-    running ``minimum`` over samples, which fuses into one loop (a ``lax.scan`` over blocks
-    of 128 beyond that).
+    branch where the curve moves fast and samples are sparse.  Written for XLA:CPU speed:
+    ``argmin`` is a variadic reduction the CPU backend does not vectorise (~40x slower),
+    and a ``min`` over a broadcast (N, M) array goes to a library kernel that
+    materialises it.  So the index is packed into the low mantissa bits of the
+    (non-negative) squared distance and the minimum is an unrolled running ``minimum``
+    over samples, which fuses into one loop (a ``lax.scan`` over blocks of 128 beyond).
     Ties break at a relative precision of ``2**(bits - 24)``; the caller refines anyway.
     """
     num, dim = samples.shape
@@ -200,11 +276,8 @@ def nearest_sample_dense(points: jax.Array, samples: jax.Array, tangents: jax.Ar
     return jnp.argmin(d2, axis=1).astype(jnp.int32)
 
 
-_NEWTON_STEPS = 3
-
-
 def foot_samples(
-    ctrl: jax.Array, weights: jax.Array | None, basis: SampleBasis, points: jax.Array
+    ctrl: jax.Array, weights: jax.Array | None, basis: SpanBasis, points: jax.Array
 ) -> jax.Array:
     """Index of the sample each point's Newton search starts from: (N,) int32.
 
@@ -212,59 +285,128 @@ def foot_samples(
     :func:`point_distances` computes it once and passes it, keeping the search out of the
     differentiated graph.  Uses :func:`nearest_sample_dense` (quick to compile).
     """
-    c0, c1 = curve_samples(ctrl, weights, basis)[:2]
-    return nearest_sample_dense(points, c0, c1 * basis.half_step[:, None])
+    return nearest_sample_dense(points, *curve_samples(ctrl, weights, basis))
+
+
+def _span_and_start(j: jax.Array, basis: SpanBasis, dtype):
+    """Each point's span (int32) and start parameter ``tau`` from its sample index.
+
+    ``sqrt`` first: XLA:CPU's fusion copies cheap elementwise producers into every
+    consumer, so without an op it counts as expensive here every later use of ``j``
+    recomputes the whole search (measured: twice as slow).  ``floor(sqrt(j*j + 1/4))``
+    is ``j`` exactly for any index below 4096 (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).
+    """
+    jf = j.astype(dtype)
+    jf = jnp.floor(jnp.sqrt(jf * jf + 0.25))
+    per = basis.per_span.astype(dtype)
+    span = jnp.minimum(jnp.floor(jf / per), (basis.num_spans - 1).astype(dtype))
+    tau = jnp.clip((jf - span * per + 0.5) / per, 0.5 / per, 1.0 - 0.5 / per)
+    return span.astype(jnp.int32), tau
+
+
+def _power_terms(e: jax.Array, degree, inside: jax.Array):
+    """``e**k`` and its first two derivatives (zero where not ``inside``: the jump term is
+    clamped off there, its derivatives with it).  ``degree``: the static ``k``, or its
+    one-hot (K + 1,) when swarms of several degrees share a vmap."""
+    if isinstance(degree, int):
+        terms = [(1.0, degree)]  # (coefficient, power)
+    else:
+        terms = [(degree[p], p) for p in range(1, degree.shape[0])]
+    powers = [jnp.ones_like(e)]
+    for _ in range(max(p for _, p in terms)):
+        powers.append(powers[-1] * e)
+    val = sum(c * powers[p] for c, p in terms)
+    der = sum(p * c * powers[p - 1] for c, p in terms)
+    der2 = sum(p * (p - 1) * c * powers[p - 2] for c, p in terms if p > 1)
+    zero = jnp.zeros_like(e)
+    return val, jnp.where(inside, der, zero), jnp.where(inside, der2 + zero, zero)
 
 
 def point_distances(
     ctrl: jax.Array,
     weights: jax.Array | None,
-    basis: SampleBasis,
+    basis: SpanBasis,
     points: jax.Array,
     foot: jax.Array | None = None,
+    degree: int | None = None,
 ) -> jax.Array:
-    """Estimated distance from every point (N, D) to the curve: shape (N,); differentiable
-    in the control points and weights (used by :mod:`swarmcurves_jax.refine`).
-    ``foot``: the search's result (:func:`foot_samples`), if already known.
-
-    After the search everything is component-major, one 1-D gather per component: on
-    XLA:CPU a trailing axis of 2 or 3 vectorises badly and a 2-D gather under ``vmap`` is
-    about ten times slower.  The barrier keeps XLA from fusing the search loop into them.
+    """Distance from every point (N, D) to a point of the curve near its foot: shape (N,);
+    differentiable in the control points, weights and (free) knots (used by
+    :mod:`swarmcurves_jax.refine`).  ``foot``: the search's result
+    (:func:`foot_samples`), if already known.  ``degree``: the curve's degree if static
+    (cheaper: a polygon takes one exact step), else read from ``basis.degree``.
     """
     dim = points.shape[1]
-    c = curve_samples(ctrl, weights, basis)
-    j = nearest_sample(points, c[0], c[1] * basis.half_step[:, None]) if foot is None else foot
-    table = [x[:, i] for x in c for i in range(dim)] + [basis.lo, basis.hi]
-    table, j = jax.lax.optimization_barrier((table, j))
-    near = [col[j] for col in table]  # 4 D + 2 arrays of shape (N,)
-    r = [near[i] - points[:, i] for i in range(dim)]
-    d1, d2, d3 = ([near[o * dim + i] for i in range(dim)] for o in (1, 2, 3))
-    lo, hi = near[4 * dim], near[4 * dim + 1]
+    hom = _homogeneous(ctrl, weights)
+    j = nearest_sample(points, *curve_samples(ctrl, weights, basis)) if foot is None else foot
+    span, tau = _span_and_start(j, basis, points.dtype)
+    coef = jnp.einsum("srn,nc->src", basis.table, hom)  # (S, K + 3, columns)
+    num_spans, rows, cols = coef.shape
+    # Each point's span rows by a chain of selects (no gather): (rows, cols) arrays (N,).
+    sel = [[jnp.broadcast_to(coef[0, r, c], tau.shape) for c in range(cols)] for r in range(rows)]
+    lo, hi = jnp.broadcast_to(basis.lo[0], tau.shape), jnp.broadcast_to(basis.hi[0], tau.shape)
+    for s in range(1, num_spans):
+        hit = span == s
+        sel = [
+            [jnp.where(hit, coef[s, r, c], x) for c, x in enumerate(row)]
+            for r, row in enumerate(sel)
+        ]
+        lo, hi = jnp.where(hit, basis.lo[s], lo), jnp.where(hit, basis.hi[s], hi)
+    top = rows - 3  # the degree K of the table
+    after, before = sel[top + 1], sel[top + 2]
 
-    def model(delta):
-        """Taylor model of ``C(u_j + delta) - p`` and its two derivatives, per component."""
-        q = [r[i] + delta * (d1[i] + delta * (d2[i] / 2 + delta * d3[i] / 6)) for i in range(dim)]
-        dq = [d1[i] + delta * (d2[i] + delta * d3[i] / 2) for i in range(dim)]
-        ddq = [d2[i] + delta * d3[i] for i in range(dim)]
-        return q, dq, ddq
+    def curve(t):
+        """Curve point, first and second derivatives at ``t``: lists of D arrays (N,)."""
+        v, d1, d2 = [], [], []
+        for c in range(cols):  # Horner with its derivatives, no products with zero
+            a, da, dda = sel[top][c], None, None
+            for r in range(top - 1, -1, -1):
+                if da is not None:
+                    dda = 2.0 * da if dda is None else dda * t + 2.0 * da
+                da = a if da is None else da * t + a
+                a = a * t + sel[r][c]
+            zero = jnp.zeros_like(t)
+            (
+                v.append(a),
+                d1.append(zero if da is None else da),
+                d2.append(zero if dda is None else dda),
+            )
+        if degree != 1:  # past either end of the span (one at a time): the neighbour
+            past, inside = t > 1.0, (t > 1.0) | (t < 0.0)
+            e = jnp.where(past, t - 1.0, jnp.minimum(t, 0.0))
+            pe, dpe, ddpe = _power_terms(e, basis.degree if degree is None else degree, inside)
+            for c in range(cols):
+                jump = jnp.where(past, after[c], before[c])
+                v[c], d1[c], d2[c] = v[c] + jump * pe, d1[c] + jump * dpe, d2[c] + jump * ddpe
+        if weights is None:
+            return v, d1, d2
+        w, dw, ddw = v[dim], d1[dim], d2[dim]
+        c0 = [v[i] / w for i in range(dim)]
+        c1 = [(d1[i] - c0[i] * dw) / w for i in range(dim)]
+        c2 = [(d2[i] - 2.0 * c1[i] * dw - c0[i] * ddw) / w for i in range(dim)]
+        return c0, c1, c2
 
-    delta = jnp.zeros_like(lo)
-    for _ in range(_NEWTON_STEPS):
-        q, dq, ddq = model(delta)
-        g = sum(q[i] * dq[i] for i in range(dim))
-        h = sum(dq[i] * dq[i] + q[i] * ddq[i] for i in range(dim))
-        to_bound = jnp.where(g > 0, lo, hi) - delta
-        delta = jnp.clip(delta + jnp.where(h > 0, -g / jnp.where(h > 0, h, 1.0), to_bound), lo, hi)
+    start = None
+    for _ in range(1 if degree == 1 and weights is None else NEWTON_STEPS):  # a line: exact
+        c0, c1, c2 = curve(tau)
+        q = [c0[i] - points[:, i] for i in range(dim)]
+        start = q if start is None else start
+        g = sum(q[i] * c1[i] for i in range(dim))
+        gauss = sum(c1[i] * c1[i] for i in range(dim))
+        # Newton's curvature term only where it shortens the step: where the distance
+        # is not convex a Gauss-Newton step, and never more than half a span.
+        h = jnp.maximum(gauss + sum(q[i] * c2[i] for i in range(dim)), gauss)
+        tau = jnp.clip(tau - jnp.clip(g / jnp.maximum(h, 1e-30), -0.5, 0.5), lo, hi)
     # The foot point is optimal, so by the envelope theorem the distance's derivative with
     # respect to the curve is its partial at a fixed foot: no gradient through Newton.
-    delta = jax.lax.stop_gradient(delta)
-    q2 = sum(x * x for x in model(delta)[0])
-    r2 = sum(x * x for x in r)
+    c0 = curve(jax.lax.stop_gradient(tau))[0]
+    q2 = sum((c0[i] - points[:, i]) ** 2 for i in range(dim))
+    r2 = sum(x * x for x in start)  # the start sample itself, if Newton went astray
     return jnp.sqrt(jnp.minimum(q2, r2) + 1e-30)  # + a normal float: finite gradient at 0
 
 
 def mean_distance(
-    ctrl: jax.Array, weights: jax.Array | None, basis: SampleBasis, points: jax.Array
+    ctrl: jax.Array, weights: jax.Array | None, basis: SpanBasis, points: jax.Array
 ) -> jax.Array:
-    """The fitness: mean estimated point-to-curve distance (a scalar)."""
+    """The fitness: mean distance from the points to the curve (a scalar)."""
     return jnp.mean(point_distances(ctrl, weights, basis, points))

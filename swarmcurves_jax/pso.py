@@ -18,6 +18,7 @@ independent run); ``best_*`` keeps the best ever found, which is what a caller r
 
 from __future__ import annotations
 
+import math
 from typing import Callable, NamedTuple
 
 import jax
@@ -32,6 +33,7 @@ __all__ = [
     "init",
     "step",
     "run",
+    "uniforms",
 ]
 
 FitnessFn = Callable[[jax.Array], jax.Array]
@@ -119,6 +121,32 @@ def _scale_to_init_box(u: jax.Array, box: Box) -> jax.Array:
     return (box.init_lower[None, :] + u * span) * box.mask[None, :]
 
 
+def _mix(x: jax.Array) -> jax.Array:
+    """MurmurHash3's 32-bit finaliser: a bijection of uint32 with full avalanche."""
+    x = (x ^ (x >> 16)) * jnp.uint32(0x85EBCA6B)
+    x = (x ^ (x >> 13)) * jnp.uint32(0xC2B2AE35)
+    return x ^ (x >> 16)
+
+
+def uniforms(key: jax.Array, counter: jax.Array, shape: tuple[int, ...], dtype) -> jax.Array:
+    """U[0, 1) draws of ``shape``, a pure function of ``(key, counter)``.
+
+    Counter-based like ``jax.random``'s threefry, but with a two-round integer hash
+    (element ``i`` of draw ``counter``: ``_mix(_mix(i ^ a) ^ b)``, 24 bits, where
+    ``a, b`` hash the key's words with the counter): on XLA:CPU ``jax.random.uniform``
+    costs about 7 ns a number, which was 90 % of the swarm's own work on W1 (measured),
+    where this fuses into the update for well under 1 ns.  Quality is checked in
+    ``tests/test_pso.py`` (uniformity, independence of draws and counters).
+    """
+    words = jax.random.key_data(key).reshape(-1).astype(jnp.uint32)
+    a = _mix(words[0] ^ _mix(jnp.asarray(counter, jnp.uint32) + jnp.uint32(0x9E3779B9)))
+    for w in words[1:]:
+        a = _mix(a ^ w)
+    b = _mix(a ^ jnp.uint32(0x6A09E667))
+    i = jax.lax.iota(jnp.uint32, math.prod(shape)).reshape(shape)
+    return (_mix(_mix(i ^ a) ^ b) >> 8).astype(dtype) * (1.0 / (1 << 24))
+
+
 def step(
     key: jax.Array,
     state: PSOState,
@@ -147,7 +175,7 @@ def step(
     progress = gbest_fit < state.gbest_fitness * (1.0 - 1e-3)
     stall = jnp.where(progress, 0, state.stall + 1)
 
-    r_l, r_g = jax.random.uniform(key, (2, *state.position.shape), dtype=fit.dtype)
+    r_l, r_g = uniforms(key, state.step, (2, *state.position.shape), fit.dtype)
     q = state.position
     v = (
         params.inertia * state.velocity
@@ -192,11 +220,11 @@ def run(
 ) -> tuple[PSOState, PSOInfo]:
     """``num_steps`` steps in one ``lax.scan``; info is stacked along the first axis.
 
-    The key of a step is ``fold_in(key, state.step)``, so splitting a run into chunks gives
-    exactly the same swarm as one long run.
+    A step's random draws are :func:`uniforms` of ``(key, state.step)``, so splitting a
+    run into chunks gives exactly the same swarm as one long run.
     """
 
     def body(s, _):
-        return step(jax.random.fold_in(key, s.step), s, params, box, fitness_fn, tol, max_steps)
+        return step(key, s, params, box, fitness_fn, tol, max_steps)
 
     return jax.lax.scan(body, state, None, length=num_steps)

@@ -1,4 +1,5 @@
-"""fit_many: batched = one by one = sharded = multi-host, bit for bit; buckets; errors."""
+"""fit_many: batched = one by one, bit for bit; sharded and multi-host: the swarm bit for
+bit, the refinement to float32 rounding; buckets; errors."""
 
 import json
 import os
@@ -116,6 +117,21 @@ def _solutions(results):
     return [[(c.control_points.tolist(), c.error) for c in r.solutions] for r in results]
 
 
+def _histories(results):
+    return [r.history.tolist() for r in results]
+
+
+def _match_across_devices(got, lone):
+    """The swarm bit for bit; the refined curves to float32 rounding: XLA compiles the
+    sharded program's arithmetic with other fused multiply-adds (measured: control points
+    within 2e-5, errors within 2e-5 relative)."""
+    assert got["histories"] == json.loads(json.dumps(_histories(lone)))
+    for curve, want in zip(got["solutions"], _solutions(lone)):
+        for (ctrl, err), (ctrl0, err0) in zip(curve, want):
+            np.testing.assert_allclose(ctrl, ctrl0, rtol=0, atol=1e-4)
+            assert abs(err - err0) <= 1e-4 * err0
+
+
 def test_sharded_over_forced_host_devices_matches_and_splits_the_work(lone):
     code = """
         import json, jax, numpy as np
@@ -131,6 +147,7 @@ def test_sharded_over_forced_host_devices_matches_and_splits_the_work(lone):
             "shards": [(str(s.device), s.data.tolist()) for s in parts],
             "batch": [r.batch["devices"] for r in many],
             "solutions": tb._solutions(many),
+            "histories": tb._histories(many),
         }))
     """
     flags = {"XLA_FLAGS": "--xla_force_host_platform_device_count=4", "PYTHONPATH": os.getcwd()}
@@ -138,7 +155,7 @@ def test_sharded_over_forced_host_devices_matches_and_splits_the_work(lone):
     assert got["devices"] == 4 and got["batch"] == [4] * 3
     assert [data for _, data in got["shards"]] == [[0, 1], [2, 3], [4, 5], [6, 7]]
     assert len({device for device, _ in got["shards"]}) == 4
-    assert got["solutions"] == json.loads(json.dumps(_solutions(_some(lone))))
+    _match_across_devices(got, _some(lone))
 
 
 def _free_port():
@@ -159,7 +176,7 @@ def test_two_processes_through_jax_distributed_match_one(lone):
         sets, closed, seeds = (tb._some(x) for x in (tb._sets(), tb.CLOSED, tb.SEEDS))
         many = fit_many(sets, closed=closed, seed=seeds, **tb.OPTS)
         print(json.dumps({"devices": jax.device_count(), "processes": jax.process_count(),
-                          "solutions": tb._solutions(many)}))
+                          "solutions": tb._solutions(many), "histories": tb._histories(many)}))
     """
     port = str(_free_port())
     env = dict(
@@ -183,12 +200,11 @@ def test_two_processes_through_jax_distributed_match_one(lone):
         for p in procs:
             p.kill()
             p.wait()
-    expected = json.loads(json.dumps(_solutions(_some(lone))))
     for p, (out, err) in zip(procs, outs):
         assert p.returncode == 0, err[-3000:]
         got = json.loads(out.splitlines()[-1])
         assert got["devices"] == 4 and got["processes"] == 2
-        assert got["solutions"] == expected
+        _match_across_devices(got, _some(lone))
 
 
 @given(st.integers(1, 200_000))

@@ -1,18 +1,35 @@
-"""The swarm's cheap fitness agrees with the true projection."""
+"""The swarm's fitness: exact span polynomials, and distances that agree with the true
+projection and never undercut it."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarmcurves_jax import design_matrix, make_knots, normalise
-from swarmcurves_jax.fitness import SampleBasis, make_sample_basis, nearest_sample, point_distances
+from swarmcurves_jax.fit import default_num_samples
+from swarmcurves_jax.fitness import (
+    SpanBasis,
+    _span_and_start,
+    make_span_basis,
+    nearest_sample,
+    point_distances,
+)
+from swarmcurves_jax.knots import breakpoints
 from swarmcurves_jax.projection import project_points
 
 
 def as_jax(basis):
-    return SampleBasis(*(jnp.asarray(x, jnp.float32) for x in basis))
+    return SpanBasis(
+        *(
+            jnp.asarray(
+                x, jnp.int32 if np.issubdtype(np.asarray(x).dtype, np.integer) else jnp.float32
+            )
+            for x in basis
+        )
+    )
 
 
 # Sample counts around the unrolled block of 128 and its scan; each count compiles once.
@@ -31,26 +48,117 @@ def test_nearest_sample_is_argmin_of_segment_distance(seed, num):
     np.testing.assert_allclose(d2[np.arange(len(pts)), j], d2.min(axis=1), rtol=1e-4, atol=1e-12)
 
 
-@pytest.mark.parametrize("closed,n", [(False, 6), (True, 8)])
-def test_fitness_near_exact_on_and_off_the_curve(closed, n):
-    rng = np.random.default_rng(5)
+@settings(max_examples=40, deadline=None)
+@given(
+    k=st.integers(1, 5),
+    extra=st.integers(0, 6),
+    closed=st.booleans(),
+    seed=st.integers(0, 2**16),
+)
+def test_span_polynomials_and_jumps_reproduce_the_curve(k, extra, closed, seed):
+    """Each span's polynomial is the curve there, and with its jump rows it is the curve
+    on the neighbouring spans too (as far as ``lo``/``hi`` let the search go)."""
+    n = k + 1 + extra
+    rng = np.random.default_rng(seed)
     ctrl = rng.uniform(-1, 1, (n, 2))
-    t = make_knots(n, 3, closed)
-    x = design_matrix(np.linspace(0, 1, 200, endpoint=not closed), t, 3, closed=closed) @ ctrl
+    t = make_knots(n, k, closed)
+    basis = make_span_basis(n, k, closed, 2 * (n + 1), n_pad=n + 2, max_degree=6)
+    breaks = breakpoints(t)
+    width = np.diff(breaks)[0]
+    coef = np.einsum("srn,nc->src", basis.table[:, :, :n], ctrl)
+    top = basis.table.shape[1] - 3
+    for s in range(len(breaks) - 1):
+        tau = np.linspace(basis.lo[s], basis.hi[s], 23)
+        poly = sum(coef[s, p] * tau[:, None] ** p for p in range(top + 1))
+        poly = poly + coef[s, top + 1] * (np.maximum(tau - 1, 0) ** k)[:, None]
+        poly = poly + coef[s, top + 2] * (np.minimum(tau, 0) ** k)[:, None]
+        u = breaks[s] + tau * width
+        want = design_matrix(u % 1.0 if closed else u, t, k, closed=closed) @ ctrl
+        np.testing.assert_allclose(poly, want, atol=1e-9)
+
+
+def test_search_samples_lie_on_their_spans():
+    basis = make_span_basis(7, 3, False, 11)  # 4 spans, 2 samples each, 3 repeats
+    assert (int(basis.per_span), int(basis.num_spans)) == (2, 4)
+    t = make_knots(7, 3, False)
+    u = (np.r_[0.5, 1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5, 7.5, 7.5, 7.5] / 8)[:, None]
+    np.testing.assert_allclose(basis.sample_value, design_matrix(u[:, 0], t, 3), atol=1e-12)
+    half = design_matrix(u[:, 0], t, 3, nu=1) / 16  # tangent times half the spacing
+    np.testing.assert_allclose(basis.sample_tangent, half, atol=1e-12)
+
+
+def test_span_and_start_recover_every_sample_index():
+    basis = as_jax(make_span_basis(40, 3, True, 4095))  # 40 spans of 102 samples, 15 repeats
+    j = jnp.arange(4095, dtype=jnp.int32)
+    span, tau = _span_and_start(j, basis, jnp.float32)
+    want = np.minimum(np.arange(4095) // 102, 39)
+    np.testing.assert_array_equal(np.asarray(span), want)
+    within = np.arange(4095) - want * 102
+    np.testing.assert_allclose(np.asarray(tau), (np.minimum(within, 101) + 0.5) / 102, rtol=1e-6)
+
+
+def _random_curve(n, k, closed, seed, rational=False):
+    rng = np.random.default_rng(seed)
+    ctrl = rng.uniform(-1, 1, (n, 2))
+    w = rng.uniform(0.3, 3.0, n) if rational else np.ones(n)
+    t = make_knots(n, k, closed)
+    u = np.linspace(0, 1, 200, endpoint=not closed)
+    b = design_matrix(u, t, k, closed=closed)
+    x = (b @ (ctrl * w[:, None])) / (b @ w)[:, None]
     xn, c, s = normalise(x)
-    cn = (ctrl - c) / s
-    basis = as_jax(make_sample_basis(n, 3, closed, 64))
-    for eps, tol in [(0.0, 2e-4), (1e-2, 0.2), (1e-1, 0.05)]:
+    return xn, (ctrl - c) / s, w, t
+
+
+@pytest.mark.parametrize(
+    "closed,n,k,rational",
+    [
+        (False, 6, 3, False),
+        (True, 8, 3, False),
+        (False, 9, 2, False),
+        (False, 7, 1, False),
+        (True, 9, 5, False),
+        (False, 6, 3, True),
+        (True, 7, 2, True),
+    ],
+)
+def test_fitness_never_undercuts_and_is_near_exact(closed, n, k, rational):
+    """The fitness is a distance to a point of the curve, so never below the exact one;
+    on random curves (loops, cusps) it is near 0 on the curve and near exact off it.
+    (Smooth data do far better: ``test_fitness_on_smooth_data_is_near_exact``.)"""
+    xn, cn, w, t = _random_curve(n, k, closed, 5, rational)
+    basis = as_jax(make_span_basis(n, k, closed, default_num_samples([(k, n)], closed)))
+    rng = np.random.default_rng(6)
+    fn = jax.jit(lambda c, w: point_distances(c, w, basis, jnp.asarray(xn, jnp.float32), degree=k))
+    for eps in (0.0, 1e-3, 1e-2, 1e-1):
         trial = cn + eps * rng.standard_normal(cn.shape)
         est = np.asarray(
-            point_distances(
-                jnp.asarray(trial, jnp.float32), None, basis, jnp.asarray(xn, jnp.float32)
-            )
+            fn(jnp.asarray(trial, jnp.float32), jnp.asarray(w, jnp.float32) if rational else None)
         )
-        exact, _ = project_points(xn, trial, np.ones(n), t, 3, closed)
-        # the estimate never undercuts the true distance by more than float32 noise
-        assert np.all(est >= exact - 1e-5)
-        if eps == 0:
-            assert est.mean() <= tol
-        else:
-            assert abs(est.mean() - exact.mean()) <= tol * exact.mean()
+        exact, _ = project_points(xn, trial, w, t, k, closed)
+        assert np.all(est >= exact - 2e-5)  # float32 noise only
+        # measured: up to 8e-4 on the curve, from points near cusps where three Newton
+        # steps from 4 samples per span fall short (the refinement uses 16 per span)
+        assert est.mean() - exact.mean() <= 1e-3 + 0.05 * exact.mean()
+
+
+def test_fitness_on_smooth_data_is_near_exact():
+    """W1's data (f4) and the least-squares curves of its 21 swarms: the fitness is the
+    true mean distance to 1e-3 (relative), and 98 % of the points to float32 precision
+    (the rest: far points of poor curves where three Newton steps fall short)."""
+    from swarmcurves_jax.datasets import analytic_points
+    from swarmcurves_jax.fit import least_squares_ctrl
+
+    pts, _, _ = normalise(analytic_points("f4"))
+    for k in (1, 2, 3):
+        samples = default_num_samples([(k, n) for n in range(4, 11)], False)  # as fit's group
+        for n in range(4, 11):
+            ctrl = least_squares_ctrl(pts, n, k, False)
+            basis = as_jax(make_span_basis(n, k, False, samples))
+            est = point_distances(
+                jnp.asarray(ctrl, jnp.float32), None, basis, jnp.asarray(pts, jnp.float32), degree=k
+            )
+            exact, _ = project_points(pts, ctrl, np.ones(n), make_knots(n, k, False), k, False)
+            est = np.asarray(est)
+            assert np.all(est >= exact - 2e-6)
+            assert abs(est.mean() - exact.mean()) <= 1e-3 * exact.mean()
+            assert np.mean(np.abs(est - exact) <= 2e-6 + 1e-4 * exact) >= 0.98  # measured 0.985

@@ -7,19 +7,21 @@ import pytest
 
 from swarmcurves_jax import fit, normalise
 from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
-from swarmcurves_jax.fitness import SampleBasis, foot_samples, make_sample_basis, point_distances
+from swarmcurves_jax.fit import REFINE_SAMPLES_PER_SPAN, default_num_samples
+from swarmcurves_jax.fitness import SpanBasis, foot_samples, make_span_basis, point_distances
 from swarmcurves_jax.projection import project_points
 from swarmcurves_jax.refine import Problem, lbfgs, levenberg_marquardt
 
 
 def _problem(seed=5, n=7):
     pts, truth = random_bspline_points(n, 3, False, seed=seed)
-    basis = SampleBasis(*(jnp.asarray(a, jnp.float32) for a in make_sample_basis(n, 3, False, 64)))
+    samples = default_num_samples([(3, n)], False, REFINE_SAMPLES_PER_SPAN)
+    basis = SpanBasis(*map(jnp.asarray, make_span_basis(n, 3, False, samples)))
     data = jnp.asarray(pts, jnp.float32)
     shape = truth.shape
 
     def residuals(x, foot):
-        return point_distances(x.reshape(shape), None, basis, data, foot)
+        return point_distances(x.reshape(shape), None, basis, data, foot, degree=3)
 
     def search(x):
         return foot_samples(x.reshape(shape), None, basis, data)
