@@ -155,8 +155,9 @@ def _by_degree(fn, groups, bases, *args):
 
 
 def _masked_mean(d, mask, count):
-    """Mean of ``d`` over the real points: the padding (``mask`` 0) adds nothing."""
-    return jnp.sum(d * mask) / count
+    """Mean of ``d`` over the real points: the padding (``mask`` 0) adds nothing.  Times
+    the reciprocal, not ``/ count``: see :func:`swarmcurves_jax.fitness._span_and_start`."""
+    return jnp.sum(d * mask) * (1.0 / count)
 
 
 def _over_curves(fn, per_curve, shared, mesh, batch):

@@ -111,11 +111,12 @@ def _span_basis(power, widths, num_spans, k: int, closed: bool, num_samples: int
     per = num_samples // num_spans
     m = xp.minimum(xp.arange(num_samples), num_spans * per - 1)
     span = m // per
-    tau = (m - span * per + 0.5) / per
+    inv = 1.0 / per  # then products: see _span_and_start
+    tau = (m - span * per + 0.5) * inv
     p = xp.arange(rows)[None, :]
     hot = (span[:, None] == s[None, :]).astype(power.dtype)  # (M, S)
     value = hot[:, :, None] * (tau[:, None] ** p)[:, None, :]
-    slope = hot[:, :, None] * (p * tau[:, None] ** xp.maximum(p - 1, 0) * 0.5 / per)[:, None, :]
+    slope = hot[:, :, None] * (p * tau[:, None] ** xp.maximum(p - 1, 0) * 0.5 * inv)[:, None, :]
     flat = power[own].reshape(size * rows, -1)
     return SpanBasis(
         table=table,
@@ -295,13 +296,17 @@ def _span_and_start(j: jax.Array, basis: SpanBasis, dtype):
     consumer, so without an op it counts as expensive here every later use of ``j``
     recomputes the whole search (measured: twice as slow).  ``floor(sqrt(j*j + 1/4))``
     is ``j`` exactly for any index below 4096 (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).
+    No division by the (broadcast) sample count: XLA rewrites ``x / c`` as ``x * (1/c)``
+    in some programs and not in others, and the sharded and the lone fit would differ.
     """
     jf = j.astype(dtype)
-    jf = jnp.floor(jnp.sqrt(jf * jf + 0.25))
-    per = basis.per_span.astype(dtype)
-    span = jnp.minimum(jnp.floor(jf / per), (basis.num_spans - 1).astype(dtype))
-    tau = jnp.clip((jf - span * per + 0.5) / per, 0.5 / per, 1.0 - 0.5 / per)
-    return span.astype(jnp.int32), tau
+    j = jnp.floor(jnp.sqrt(jf * jf + 0.25)).astype(jnp.int32)
+    span = jnp.minimum(j // basis.per_span, basis.num_spans - 1)
+    inv = 1.0 / basis.per_span.astype(dtype)
+    tau = jnp.clip(
+        ((j - span * basis.per_span).astype(dtype) + 0.5) * inv, 0.5 * inv, 1.0 - 0.5 * inv
+    )
+    return span, tau
 
 
 def _power_terms(e: jax.Array, degree, inside: jax.Array):

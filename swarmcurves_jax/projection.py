@@ -70,17 +70,22 @@ def _nearest_chords(points, samples, top=3, near=32):
     inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
     out = np.empty((len(points), top), dtype=np.int64)
     near = min(near, len(samples))
-    dist, vert = cKDTree(samples).query(points, k=near)
-    cand = np.sort(np.clip(np.concatenate([vert - 1, vert], axis=1), 0, len(a) - 1), axis=1)
-    d2 = _chord_d2(points, a, ab, inv, cand)
-    d2[:, 1:][cand[:, 1:] == cand[:, :-1]] = np.inf  # each chord once
-    pick = np.argpartition(d2, top - 1, axis=1)[:, :top]
-    rows = np.arange(len(points))[:, None]
-    out[:] = cand[rows, pick]
-    reach = np.sqrt(d2[rows, pick].max(axis=1)) + 0.5 * np.sqrt(
-        np.max(ab**2 @ np.ones(ab.shape[1]))
-    )
-    unsure = np.flatnonzero(dist[:, -1] <= reach) if near < len(samples) else []
+    tree = cKDTree(samples)
+    half = 0.5 * np.sqrt(np.max(np.sum(ab**2, axis=1)))
+    unsure = []
+    for lo in range(0, len(points), 8192):  # bounded temporaries for huge scans
+        p = points[lo : lo + 8192]
+        dist, vert = (x.reshape(len(p), -1) for x in tree.query(p, k=near))
+        cand = np.sort(np.clip(np.concatenate([vert - 1, vert], axis=1), 0, len(a) - 1), axis=1)
+        d2 = _chord_d2(p, a, ab, inv, cand)
+        d2[:, 1:][cand[:, 1:] == cand[:, :-1]] = np.inf  # each chord once
+        pick = np.argpartition(d2, top - 1, axis=1)[:, :top]
+        rows = np.arange(len(p))[:, None]
+        out[lo : lo + len(p)] = cand[rows, pick]
+        if near < len(samples):
+            reach = np.sqrt(d2[rows, pick].max(axis=1)) + half
+            unsure.extend(lo + np.flatnonzero(dist[:, -1] <= reach))
+    unsure = np.asarray(unsure, dtype=np.int64)
     chunk = max(1, _CHUNK * 1024 // max(len(a), 1))
     every = np.arange(len(a))
     for lo in range(0, len(unsure), chunk):

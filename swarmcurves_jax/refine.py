@@ -34,12 +34,6 @@ METHODS = ("lm", "lbfgs")
 #: lowest hold-out error is kept, so a refinement stops before it fits the noise.
 HOLDOUT_EVERY = 5
 
-#: A step or an iterate must improve by more than this (relative) to count: float32
-#: distances carry rounding noise of about 1e-7 that differs between compilations of the
-#: same program (fused multiply-adds), and a decision taken on noise would make the
-#: sharded and the lone fit of a curve part ways.
-MARGIN = 1e-5
-
 #: Steps of each stage.  LM: least squares, then reweighted towards the mean distance;
 #: measured on f1-f5, both stages have converged by then.
 LM_L2_STEPS, LM_L1_STEPS = 25, 15
@@ -70,7 +64,7 @@ def _mean(valid):
     """The mean distance over the real points (all of them when ``valid`` is None)."""
     if valid is None:
         return jnp.mean
-    return lambda d: jnp.sum(d) / jnp.maximum(jnp.sum(valid), 1.0)
+    return lambda d: jnp.sum(d) * (1.0 / jnp.maximum(jnp.sum(valid), 1.0))
 
 
 def _scores(holdout, valid):
@@ -79,7 +73,8 @@ def _scores(holdout, valid):
     ones = 1.0 if valid is None else valid
     if holdout is None:
         return ones, _mean(valid)
-    return ones - holdout, lambda d: jnp.sum(holdout * d) / jnp.maximum(jnp.sum(holdout), 1.0)
+    inv = 1.0 / jnp.maximum(jnp.sum(holdout), 1.0)
+    return ones - holdout, lambda d: jnp.sum(holdout * d) * inv
 
 
 def levenberg_marquardt(
@@ -111,7 +106,7 @@ def levenberg_marquardt(
         x_new = jnp.clip(x - spd_solve(a, g), lower, upper)
         aux_new = search(x_new)
         d_new = residuals(x_new, aux_new)
-        ok = jnp.sum(w * d_new**2) < (1.0 - MARGIN) * jnp.sum(w * d**2)  # NaN: False
+        ok = jnp.sum(w * d_new**2) < jnp.sum(w * d**2)  # NaN compares False
         x = jnp.where(ok, x_new, x)
         aux = jnp.where(ok, aux_new, aux)
         mu = jnp.clip(jnp.where(ok, mu / 3.0, mu * 4.0), 1e-10, 1e10)
@@ -141,7 +136,8 @@ def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
     def column(j, low):
         col = a[:, j] - low @ low[j]  # columns >= j of `low` are still zero
         d = jnp.sqrt(col[j])
-        return low.at[:, j].set(jnp.where(idx > j, col / d, jnp.where(idx == j, d, 0.0)))
+        below = col * (1.0 / d)  # a product: XLA may rewrite a broadcast division either way
+        return low.at[:, j].set(jnp.where(idx > j, below, jnp.where(idx == j, d, 0.0)))
 
     low = jax.lax.fori_loop(0, n, column, jnp.zeros_like(a))
     diag = jnp.diagonal(low)
@@ -162,7 +158,7 @@ def _keep_better(ok, x, d, mean, score, best):
     avg, value = (jnp.where(jnp.isnan(v), jnp.inf, v) for v in (mean(d), score(d)))
     if best is None:
         return x, avg, value
-    better = ok & (value < (1.0 - MARGIN) * best[2])
+    better = ok & (value < best[2])
     return tuple(jnp.where(better, a, b) for a, b in zip((x, avg, value), best, strict=True))
 
 
@@ -187,7 +183,7 @@ def lbfgs(
 
     def loss(x):
         d = distances(x)
-        return jnp.sum(train * d) / jnp.sum(train * jnp.ones_like(d))
+        return jnp.sum(train * d) * (1.0 / jnp.sum(train * jnp.ones_like(d)))
 
     opt = optax.lbfgs()
     value_and_grad = optax.value_and_grad_from_state(loss)

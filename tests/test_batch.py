@@ -1,5 +1,4 @@
-"""fit_many: batched = one by one, bit for bit; sharded and multi-host: the swarm bit for
-bit, the refinement to float32 rounding; buckets; errors."""
+"""fit_many: batched = one by one = sharded = multi-host, bit for bit; buckets; errors."""
 
 import json
 import os
@@ -122,14 +121,9 @@ def _histories(results):
 
 
 def _match_across_devices(got, lone):
-    """The swarm bit for bit; the refined curves to float32 rounding: XLA compiles the
-    sharded program's arithmetic with other fused multiply-adds (measured: control points
-    within 2e-5, errors within 2e-5 relative)."""
+    """Bit for bit: the swarm's history and every solution."""
     assert got["histories"] == json.loads(json.dumps(_histories(lone)))
-    for curve, want in zip(got["solutions"], _solutions(lone)):
-        for (ctrl, err), (ctrl0, err0) in zip(curve, want):
-            np.testing.assert_allclose(ctrl, ctrl0, rtol=0, atol=1e-4)
-            assert abs(err - err0) <= 1e-4 * err0
+    assert got["solutions"] == json.loads(json.dumps(_solutions(lone)))
 
 
 def test_sharded_over_forced_host_devices_matches_and_splits_the_work(lone):
