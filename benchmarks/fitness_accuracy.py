@@ -26,8 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from swarmcurves_jax import design_matrix, make_knots, normalise
-from swarmcurves_jax.datasets import analytic_points
+from swarmcurves_jax import make_knots, normalise
+from swarmcurves_jax.datasets import analytic_points, random_bspline_points, random_nurbs_points
 from swarmcurves_jax.fit import least_squares_ctrl
 from swarmcurves_jax.fitness import SpanBasis, make_span_basis, point_distances
 from swarmcurves_jax.projection import project_points
@@ -75,13 +75,11 @@ def smooth(per_span):
 
 
 def random_curve(n, k, closed, seed, rational):
-    rng = np.random.default_rng(seed)
-    ctrl = rng.uniform(-1, 1, (n, 2))
-    w = rng.uniform(0.3, 3.0, n) if rational else None
-    t = make_knots(n, k, closed)
-    b = design_matrix(np.linspace(0, 1, 200, endpoint=not closed), t, k, closed=closed)
-    ww = np.ones(n) if w is None else w
-    x = (b @ (ctrl * ww[:, None])) / (b @ ww)[:, None]
+    """Normalised points, control points and weights (None: a B-spline) of a random curve."""
+    if rational:
+        x, ctrl, w = random_nurbs_points(n, k, closed, seed=seed)
+    else:
+        (x, ctrl), w = random_bspline_points(n, k, closed, seed=seed), None
     xn, c, s = normalise(x)
     return xn, (ctrl - c) / s, w
 

@@ -14,6 +14,7 @@ __all__ = [
     "ANALYTIC",
     "analytic_points",
     "random_bspline_points",
+    "random_nurbs_points",
     "normal_noise",
     "remove_points",
     "circular_arc_points",
@@ -61,6 +62,25 @@ def random_bspline_points(
     ctrl = np.random.default_rng(seed).uniform(-1, 1, (n, dim))
     u = np.linspace(0, 1, num_points, endpoint=not closed)
     return design_matrix(u, make_knots(n, degree, closed), degree, closed=closed) @ ctrl, ctrl
+
+
+def random_nurbs_points(
+    n: int = 6,
+    degree: int = 3,
+    closed: bool = False,
+    num_points: int = 200,
+    dim: int = 2,
+    seed: int = 0,
+    weight_range: tuple[float, float] = (0.3, 3.0),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points of a random NURBS (control points U[-1, 1], weights U[weight_range]) at
+    evenly spaced parameters.  Returns ``(points, control_points, weights)``."""
+    rng = np.random.default_rng(seed)
+    ctrl = rng.uniform(-1, 1, (n, dim))
+    weights = rng.uniform(*weight_range, n)
+    u = np.linspace(0, 1, num_points, endpoint=not closed)
+    b = design_matrix(u, make_knots(n, degree, closed), degree, closed=closed)
+    return (b @ (ctrl * weights[:, None])) / (b @ weights)[:, None], ctrl, weights
 
 
 def normal_noise(points, sigma: float, seed: int = 0, closed: bool = False) -> np.ndarray:

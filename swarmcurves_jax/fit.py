@@ -81,11 +81,12 @@ def default_num_samples(pairs, closed: bool, per_span: int = SAMPLES_PER_SPAN) -
     one with the most spans, one per segment of a polygon, at least 8.
 
     The samples only pick each point's span and Newton's start (:mod:`.fitness`).
-    Measured with ``benchmarks/fitness_accuracy.py`` (the fitness of curves against the
-    true projection): on smooth data (W1's least-squares curves) two per span suffice;
-    on random cubics and quadrics with loops and cusps, two per span leave the true curve
-    a fitness up to 2e-2, four 3e-3 and eight 5e-4 (the earlier 48 samples of a Taylor
-    model: 3e-3).
+    Measured by ``benchmarks/fitness_accuracy.py`` (fitness against the true projection):
+    on W1's least-squares curves, perturbed, the median over-estimate is 5e-4 with two
+    per span, 5.5e-6 with four (90th percentile 2e-3); on random curves with loops and
+    cusps the true curve's fitness is at worst 2e-2 with two, 2.7e-3 with four, 4.9e-4
+    with eight (the earlier Taylor model with 48 samples: 3e-3).  Four trade that
+    against time: the search is most of the fitness's cost.
     """
     need = [(n if closed else n - k) * (1 if k == 1 else per_span) for k, n in pairs]
     return int(min(MAX_SAMPLES, max(8, *need)))

@@ -168,7 +168,6 @@ def free_knot_basis(
     closed: bool,
     num_samples: int,
     n_pad: int,
-    max_degree: int | None = None,
 ) -> SpanBasis:
     """:func:`make_span_basis` for free knots, in JAX, differentiable in ``logits``.
 
@@ -189,8 +188,6 @@ def free_knot_basis(
             cols = jnp.arange(b.shape[1]) % num_spans
             b = b @ (cols[:, None] == jnp.arange(n_pad)[None, :]).astype(b.dtype)
         rows.append(b[:, :n_pad] * (widths[own] ** nu / math.factorial(nu))[:, None])
-    extra = (k if max_degree is None else max_degree) - k
-    rows += [jnp.zeros_like(rows[0])] * extra
     safe = jnp.where(jnp.arange(size) < num_spans, widths, 1.0)
     return _span_basis(jnp.stack(rows, axis=1), safe, num_spans, k, closed, num_samples, jnp)
 
@@ -293,9 +290,10 @@ def _span_and_start(j: jax.Array, basis: SpanBasis, dtype):
     """Each point's span (int32) and start parameter ``tau`` from its sample index.
 
     ``sqrt`` first: XLA:CPU's fusion copies cheap elementwise producers into every
-    consumer, so without an op it counts as expensive here every later use of ``j``
-    recomputes the whole search (measured: twice as slow).  ``floor(sqrt(j*j + 1/4))``
-    is ``j`` exactly for any index below 4096 (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).
+    consumer, so unless an op it counts as expensive stands between them, every later use
+    of ``j`` recomputes the whole search (measured: the fitness twice as slow).
+    ``floor(sqrt(j*j + 1/4))`` is ``j`` exactly for any index below 4096
+    (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).
     No division by the (broadcast) sample count: XLA rewrites ``x / c`` as ``x * (1/c)``
     in some programs and not in others, and the sharded and the lone fit would differ.
     """
@@ -371,11 +369,9 @@ def point_distances(
                 da = a if da is None else da * t + a
                 a = a * t + sel[r][c]
             zero = jnp.zeros_like(t)
-            (
-                v.append(a),
-                d1.append(zero if da is None else da),
-                d2.append(zero if dda is None else dda),
-            )
+            v.append(a)
+            d1.append(zero if da is None else da)
+            d2.append(zero if dda is None else dda)
         if degree != 1:  # past either end of the span (one at a time): the neighbour
             past, inside = t > 1.0, (t > 1.0) | (t < 0.0)
             e = jnp.where(past, t - 1.0, jnp.minimum(t, 0.0))

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarmcurves_jax import design_matrix, make_knots, normalise
+from swarmcurves_jax.datasets import random_bspline_points, random_nurbs_points
 from swarmcurves_jax.fit import default_num_samples
 from swarmcurves_jax.fitness import (
     SpanBasis,
@@ -98,15 +99,13 @@ def test_span_and_start_recover_every_sample_index():
 
 
 def _random_curve(n, k, closed, seed, rational=False):
-    rng = np.random.default_rng(seed)
-    ctrl = rng.uniform(-1, 1, (n, 2))
-    w = rng.uniform(0.3, 3.0, n) if rational else np.ones(n)
-    t = make_knots(n, k, closed)
-    u = np.linspace(0, 1, 200, endpoint=not closed)
-    b = design_matrix(u, t, k, closed=closed)
-    x = (b @ (ctrl * w[:, None])) / (b @ w)[:, None]
+    """Normalised points, control points and weights of a random (NURBS) curve, its knots."""
+    if rational:
+        x, ctrl, w = random_nurbs_points(n, k, closed, seed=seed)
+    else:
+        (x, ctrl), w = random_bspline_points(n, k, closed, seed=seed), np.ones(n)
     xn, c, s = normalise(x)
-    return xn, (ctrl - c) / s, w, t
+    return xn, (ctrl - c) / s, w, make_knots(n, k, closed)
 
 
 @pytest.mark.parametrize(
