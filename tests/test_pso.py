@@ -92,3 +92,27 @@ def test_restart_after_patience():
     b = box(2)
     state, info = pso.run(k, pso.init(k, b, 8), params, b, lambda q: jnp.ones(q.shape[0]), 40)
     assert np.asarray(info.restarted).sum() >= 3  # a flat fitness never progresses
+
+
+def test_uniform_draws_are_uniform_independent_and_deterministic():
+    """pso.uniforms (the counter-based hash behind r_l, r_g): U[0, 1), no correlation
+    between the two draws of a step, between steps, or between swarms' keys."""
+    from scipy import stats
+
+    key = jax.random.key(7)
+    draws = np.asarray(pso.uniforms(key, 3, (2, 64, 800), jnp.float32))  # 102,400 numbers
+    assert draws.min() >= 0.0 and draws.max() < 1.0
+    assert stats.kstest(draws.ravel(), "uniform").pvalue > 1e-3
+    assert abs(draws.mean() - 0.5) < 0.005 and abs(draws.var() - 1 / 12) < 0.003
+    # about 1/sqrt(51,200) = 0.0044 is chance: 0.02 is over four of those
+    r_l, r_g = draws.reshape(2, -1)
+    assert abs(np.corrcoef(r_l, r_g)[0, 1]) < 0.02
+    later = np.asarray(pso.uniforms(key, 4, (2, 64, 800), jnp.float32)).ravel()
+    assert abs(np.corrcoef(draws.ravel(), later)[0, 1]) < 0.02
+    other = np.asarray(pso.uniforms(jax.random.key(8), 3, (2, 64, 800), jnp.float32)).ravel()
+    assert abs(np.corrcoef(draws.ravel(), other)[0, 1]) < 0.02
+    # neighbours in the array are not correlated either (lag-1 along the coordinates)
+    flat = draws.ravel()
+    assert abs(np.corrcoef(flat[:-1], flat[1:])[0, 1]) < 0.02
+    again = np.asarray(pso.uniforms(key, 3, (2, 64, 800), jnp.float32))
+    np.testing.assert_array_equal(draws, again)
