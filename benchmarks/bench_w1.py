@@ -7,12 +7,15 @@ W1 is the swarm alone (``refine=False``), the workload peers are compared on; ``
 adds the default refinement and prints its share (``FitResult.timings``).  Prints the cold
 time (first call: tracing + XLA compilation + run), the warm time (a second call of the same
 shapes, which compiles nothing), peak resident memory, particle evaluations per second, the
-device and the JAX version.
+device and the JAX version; and, per warm run, the process's CPU time and the CPU time the
+machine's hypervisor stole (Linux ``/proc/stat``): on a shared virtual machine the wall time
+of the same program varies by 2x with the steal, so compare code by CPU time or at low steal.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import resource
 import time
@@ -21,6 +24,22 @@ import jax
 
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
+
+
+def cpu_seconds() -> float:
+    """User + system CPU time of this process (every thread)."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def stolen_seconds() -> float:
+    """CPU time stolen from this machine by its hypervisor so far (NaN off Linux)."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return float("nan")
 
 
 def main(argv=None):
@@ -47,11 +66,13 @@ def main(argv=None):
     t0 = time.perf_counter()
     result = fit(pts, **kwargs)
     cold = time.perf_counter() - t0
-    warm, stages = [], []
+    warm, stages, cpu, stolen = [], [], [], []
     for _ in range(args.repeats):
-        t0 = time.perf_counter()
+        t0, c0, s0 = time.perf_counter(), cpu_seconds(), stolen_seconds()
         stages.append(fit(pts, **kwargs).timings)
         warm.append(time.perf_counter() - t0)
+        cpu.append(cpu_seconds() - c0)
+        stolen.append(stolen_seconds() - s0)
     with_bar = []
     if args.progress:
         import io
@@ -76,6 +97,10 @@ def main(argv=None):
     print(
         f"warm          : {min(warm):.2f} s (min of {args.repeats}; all: "
         f"{', '.join(f'{w:.2f}' for w in warm)})"
+    )
+    print(
+        f"warm CPU time : {min(cpu):.2f} s (min; all: {', '.join(f'{c:.2f}' for c in cpu)}); "
+        f"stolen: {', '.join(f'{x:.1f}' for x in stolen)} s"
     )
     if with_bar:
         print(

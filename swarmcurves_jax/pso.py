@@ -33,6 +33,8 @@ __all__ = [
     "init",
     "step",
     "run",
+    "run_swarms",
+    "update",
     "uniforms",
 ]
 
@@ -156,13 +158,25 @@ def step(
     tol: jax.Array | float,
     max_steps: jax.Array | int,
 ) -> tuple[PSOState, PSOInfo]:
-    """One evaluate-update-move step.
+    """One evaluate-update-move step: :func:`update` with ``fitness_fn(state.position)``."""
+    return update(key, state, params, box, fitness_fn(state.position), tol, max_steps)
+
+
+def update(
+    key: jax.Array,
+    state: PSOState,
+    params: PSOParams,
+    box: Box,
+    fit: jax.Array,
+    tol: jax.Array | float,
+    max_steps: jax.Array | int,
+) -> tuple[PSOState, PSOInfo]:
+    """The step after evaluating: ``fit`` (P,) is the fitness of ``state.position``.
 
     A swarm whose best fitness is already ``<= tol``, or which has done ``max_steps``
     evaluations, is left unchanged (frozen), so a swarm's result never depends on how long
     the other swarms of the same program run.
     """
-    fit = fitness_fn(state.position)
     fit = jnp.where(jnp.isfinite(fit), fit, jnp.inf)
     better = fit < state.pbest_fitness
     pbest_pos = jnp.where(better[:, None], state.position, state.pbest_position)
@@ -228,3 +242,27 @@ def run(
         return step(key, s, params, box, fitness_fn, tol, max_steps)
 
     return jax.lax.scan(body, state, None, length=num_steps)
+
+
+def run_swarms(
+    keys: jax.Array,
+    states: PSOState,
+    params: PSOParams,
+    boxes: Box,
+    fitness_fn: Callable[[jax.Array], jax.Array],
+    num_steps: int,
+    tol: jax.Array | float = -1.0,
+    max_steps: jax.Array | int = _NO_LIMIT,
+) -> tuple[PSOState, PSOInfo]:
+    """:func:`run` of independent swarms (a leading swarm axis on ``keys``, ``states`` and
+    ``boxes``) in one ``lax.scan``, with one ``fitness_fn`` of all their positions
+    (S, P, dim) -> (S, P): the caller may evaluate groups of swarms differently, and each
+    step is one trip of one loop, not one per group.  Each swarm's result equals its
+    :func:`run`.  Info is (num_steps, S).
+    """
+    move = jax.vmap(update, in_axes=(0, 0, None, 0, 0, None, None))
+
+    def body(s, _):
+        return move(keys, s, params, boxes, fitness_fn(s.position), tol, max_steps)
+
+    return jax.lax.scan(body, states, None, length=num_steps)

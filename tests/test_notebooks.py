@@ -1,11 +1,15 @@
 """The notebooks run top to bottom in a real Jupyter kernel, at a small iteration count
-(``SWARMCURVES_ITERATIONS``), so what they show keeps working."""
+(``SWARMCURVES_ITERATIONS``) and with one paper case per figure
+(``SWARMCURVES_CASES_PER_FIGURE``: every case compiles its own program, and all 42 took
+most of the suite's time), so what they show keeps working."""
 
 from pathlib import Path
 
 import nbformat
 import pytest
 from nbclient import NotebookClient
+
+from swarmcurves_jax.paper import paper_cases
 
 NOTEBOOKS = Path(__file__).resolve().parents[1] / "notebooks"
 ITERATIONS = "60"
@@ -14,6 +18,7 @@ ITERATIONS = "60"
 @pytest.mark.parametrize("name", ["quickstart.ipynb", "paper_figures.ipynb"])
 def test_notebook_runs_top_to_bottom(name, monkeypatch):
     monkeypatch.setenv("SWARMCURVES_ITERATIONS", ITERATIONS)
+    monkeypatch.setenv("SWARMCURVES_CASES_PER_FIGURE", "1")
     monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
     nb = nbformat.read(NOTEBOOKS / name, as_version=4)
     client = NotebookClient(
@@ -24,5 +29,10 @@ def test_notebook_runs_top_to_bottom(name, monkeypatch):
     assert not [o for o in outputs if o.output_type == "error"]
     images = [o for o in outputs if "image/png" in o.get("data", {})]
     assert images, f"{name} drew no figure"
+    text = "".join(o.get("text", "") for o in outputs)
     if name == "quickstart.ipynb":
-        assert any("sparsest" in o.get("text", "") for o in outputs)
+        assert "sparsest" in text
+    else:  # one case per figure, each fitted and drawn
+        figures = {case.figure for case in paper_cases()[0]}
+        assert text.count("best degree") == len(figures), text
+        assert len(images) == len(figures) + 1  # a figure per case and the Table 1 panel
