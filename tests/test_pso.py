@@ -40,6 +40,32 @@ def test_converges_on_sphere_and_rosenbrock():
     assert np.all(np.diff(np.asarray(info.best_fitness)) <= 0)  # best ever never worsens
 
 
+def test_run_swarms_equals_each_swarm_run_alone():
+    """Swarms stepped in one loop, with one fitness call for all of them (a different
+    function per swarm), end exactly where each ends alone, also when capped."""
+    fns = [sphere, rosenbrock, lambda q: jnp.sum(jnp.abs(q), axis=-1)]
+    keys = [jax.random.key(i) for i in (1, 2, 3)]
+    boxes = [box(3), box(3, -2.0, 2.0), box(3, 0.0, 1.0)]
+    params = pso.default_params()
+    stack = lambda *xs: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *xs)  # noqa: E731
+    states = stack(*(pso.init(k, b, 16) for k, b in zip(keys, boxes)))
+
+    def fitness(positions):  # (3, 16, 3) -> (3, 16)
+        return jnp.stack([fn(q) for fn, q in zip(fns, positions)])
+
+    for max_steps in (150, 40):
+        together, info = pso.run_swarms(
+            jnp.stack(keys), states, params, stack(*boxes), fitness, 150, max_steps=max_steps
+        )
+        assert info.best_fitness.shape == (150, 3)
+        for i, (k, b, fn) in enumerate(zip(keys, boxes, fns)):
+            state, alone = pso.run(k, pso.init(k, b, 16), params, b, fn, 150, max_steps=max_steps)
+            assert int(together.step[i]) == max_steps
+            for x, y in zip(state, together):
+                np.testing.assert_array_equal(x, y[i])
+            np.testing.assert_array_equal(alone.best_fitness, info.best_fitness[:, i])
+
+
 def test_nan_fitness_counts_as_inf():
     def nan_left(q):
         return jnp.where(q[:, 0] < 0, jnp.nan, sphere(q))
