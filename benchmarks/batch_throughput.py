@@ -15,9 +15,8 @@
   Results are also checked equal: ``fit_many``'s first curves against the loop's.
 - **Sharding**: the same ``fit_many`` of ``--shard-curves`` curves in fresh processes with
   ``XLA_FLAGS=--xla_force_host_platform_device_count=1,2,4,8``: seconds, the curves each
-  device computed, whether the swarm stage equals the one-device run bit for bit, and how
-  far the refined control points are from it (float32 rounding: XLA compiles the sharded
-  program's arithmetic with other fused multiply-adds).
+  device computed, whether the swarm stage and the refined curves equal the one-device
+  run bit for bit, and the largest control-point difference (0 when they do).
   Forced host devices share this machine's cores, so this shows the split and the equality,
   not a speed-up; on a machine with several GPUs the same call splits over them.
 

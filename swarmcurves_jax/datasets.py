@@ -47,6 +47,13 @@ def analytic_points(name: str, num_points: int = 200) -> np.ndarray:
     return np.c_[x, fn(x)]
 
 
+def _random_ctrl_and_basis(n, degree, closed, num_points, dim, rng):
+    """Control points U[-1, 1] and the design matrix at evenly spaced parameters."""
+    ctrl = rng.uniform(-1, 1, (n, dim))
+    u = np.linspace(0, 1, num_points, endpoint=not closed)
+    return ctrl, design_matrix(u, make_knots(n, degree, closed), degree, closed=closed)
+
+
 def random_bspline_points(
     n: int = 6,
     degree: int = 3,
@@ -59,9 +66,9 @@ def random_bspline_points(
 
     Returns ``(points, control_points)``.
     """
-    ctrl = np.random.default_rng(seed).uniform(-1, 1, (n, dim))
-    u = np.linspace(0, 1, num_points, endpoint=not closed)
-    return design_matrix(u, make_knots(n, degree, closed), degree, closed=closed) @ ctrl, ctrl
+    rng = np.random.default_rng(seed)
+    ctrl, b = _random_ctrl_and_basis(n, degree, closed, num_points, dim, rng)
+    return b @ ctrl, ctrl
 
 
 def random_nurbs_points(
@@ -76,10 +83,8 @@ def random_nurbs_points(
     """Points of a random NURBS (control points U[-1, 1], weights U[weight_range]) at
     evenly spaced parameters.  Returns ``(points, control_points, weights)``."""
     rng = np.random.default_rng(seed)
-    ctrl = rng.uniform(-1, 1, (n, dim))
+    ctrl, b = _random_ctrl_and_basis(n, degree, closed, num_points, dim, rng)
     weights = rng.uniform(*weight_range, n)
-    u = np.linspace(0, 1, num_points, endpoint=not closed)
-    b = design_matrix(u, make_knots(n, degree, closed), degree, closed=closed)
     return (b @ (ctrl * weights[:, None])) / (b @ weights)[:, None], ctrl, weights
 
 

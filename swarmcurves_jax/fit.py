@@ -232,20 +232,16 @@ def _swarm_program(
         root_key = jax.random.wrap_key_data(key_data)
         count = jnp.sum(mask)
 
-        def swarm_keys(pair):
-            return jax.random.split(
-                jax.random.fold_in(jax.random.fold_in(root_key, pair[0]), pair[1])
+        def start(pair, state, box, seed):
+            """The swarm's run key, and its state (fresh where it has not started)."""
+            key = jax.random.fold_in(jax.random.fold_in(root_key, pair[0]), pair[1])
+            init_key, run_key = jax.random.split(key)
+            fresh = pso.init(init_key, box, num_particles, seed)
+            return run_key, jax.tree_util.tree_map(
+                lambda a, b: jnp.where(state.step == 0, a, b), fresh, state
             )
 
-        init_keys, run_keys = jnp.moveaxis(jax.vmap(swarm_keys)(pairs), 1, 0)
-        fresh = jax.vmap(lambda key, box, seed: pso.init(key, box, num_particles, seed))(
-            init_keys, boxes, seeds if seeded else None
-        )
-        state = jax.tree_util.tree_map(
-            lambda a, b: jnp.where(jnp.expand_dims(state.step == 0, range(1, a.ndim)), a, b),
-            fresh,
-            state,
-        )
+        run_keys, state = jax.vmap(start)(pairs, state, boxes, seeds if seeded else None)
 
         def group_fitness(pair, positions, basis, k):
             return jax.vmap(

@@ -67,11 +67,12 @@ def _nearest_chords(points, samples, top=3, near=32):
     """
     a, b = samples[:-1], samples[1:]
     ab = b - a
-    inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
+    len2 = np.sum(ab**2, axis=1)
+    inv = 1.0 / np.maximum(len2, 1e-300)
     out = np.empty((len(points), top), dtype=np.int64)
     near = min(near, len(samples))
     tree = cKDTree(samples)
-    half = 0.5 * np.sqrt(np.max(np.sum(ab**2, axis=1)))
+    half = 0.5 * np.sqrt(np.max(len2))
     unsure = []
     for lo in range(0, len(points), 8192):  # bounded temporaries for huge scans
         p = points[lo : lo + 8192]
