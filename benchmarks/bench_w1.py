@@ -24,6 +24,7 @@ import jax
 
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
+from swarmcurves_jax.devices import cpu_devices
 
 
 def cpu_seconds() -> float:
@@ -53,7 +54,14 @@ def main(argv=None):
         help="also time warm runs with the progress bar on (its overhead)",
     )
     ap.add_argument("--refine", choices=("none", "lm", "lbfgs"), default="none")
+    ap.add_argument(
+        "--cpu-devices",
+        type=int,
+        default=os.cpu_count(),
+        help="CPU devices JAX makes (fit deals its swarms over them); default: one per core",
+    )
     args = ap.parse_args(argv)
+    jax.config.update("jax_num_cpu_devices", args.cpu_devices)
     pts = analytic_points("f4")
     kwargs = dict(
         cps=range(4, 11),
@@ -87,7 +95,8 @@ def main(argv=None):
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(
         f"device        : {jax.devices()[0].device_kind} ({jax.default_backend()}), "
-        f"{platform.processor() or platform.machine()}, jax {jax.__version__}"
+        f"{platform.processor() or platform.machine()}, jax {jax.__version__}; "
+        f"{len(cpu_devices()) or 1} program(s) at once (--cpu-devices {args.cpu_devices})"
     )
     print(
         f"workload      : 21 swarms x {args.particles} particles x {args.iterations} "

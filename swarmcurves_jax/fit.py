@@ -8,6 +8,7 @@ import math
 import os
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, NamedTuple
 
 import jax
@@ -30,7 +31,7 @@ from ._validation import (
 )
 from .basis import design_matrix
 from .curves import Curve
-from .devices import Placement
+from .devices import Placement, cpu_devices
 from .fitness import (
     SpanBasis,
     foot_samples,
@@ -574,6 +575,7 @@ def fit(
             bar=bar,
             catch_interrupt=True,
             start=start,
+            split=None if callback or bar else cpu_devices(),
         )
     finally:
         if bar is not None:
@@ -773,6 +775,38 @@ def _run_group(preps, opts: _Options, **kwargs) -> list[FitResult]:
     return _collect(_launch(preps, opts, **kwargs))
 
 
+def _split_swarms(groups, parts: int) -> list[np.ndarray]:
+    """The swarms of a call dealt into at most ``parts`` sets of similar cost (each to the
+    least loaded set when its turn comes, the costliest first), each set in call order.
+
+    A swarm's cost is its group's search samples plus 10, a rough count of the work per
+    point after the search (``benchmarks/bench_w1.py`` times the result).
+    """
+    cost = np.zeros(groups[-1][2])
+    for _, i, j, samples in groups:
+        cost[i:j] = samples + 10
+    count = min(parts, len(cost))
+    load, sets = np.zeros(count), [[] for _ in range(count)]
+    for i in sorted(range(len(cost)), key=lambda i: (-cost[i], i)):
+        d = int(np.argmin(load))
+        load[d] += cost[i]
+        sets[d].append(i)
+    return [np.array(sorted(x)) for x in sets]
+
+
+def _part_groups(groups, chosen: np.ndarray):
+    """:func:`_degree_groups` of the swarms ``chosen``, each degree keeping the whole
+    call's search samples (so a swarm's result does not depend on the split), and per
+    group its index in ``groups`` and the positions of its chosen swarms there."""
+    out, within = [], []
+    for g, (k, i, j, samples) in enumerate(groups):
+        mine = np.flatnonzero((chosen >= i) & (chosen < j))
+        if len(mine):
+            out.append((k, int(mine[0]), int(mine[-1]) + 1, samples))
+            within.append((g, chosen[mine] - i))
+    return tuple(out), within
+
+
 class _Launched(NamedTuple):
     """A program call in flight: its device arrays and what the host needs to finish it."""
 
@@ -800,6 +834,7 @@ def _launch(
     size=None,
     start=None,
     sync=True,
+    split=None,
 ) -> _Launched:
     """Launch curves of one shape bucket (equal :func:`group_key`) as one program call.
 
@@ -809,6 +844,9 @@ def _launch(
     ``callback(iteration, best (curves, solutions))`` runs after every chunk.  With
     ``sync`` the swarm is waited for before the refinement, to time each; without, both are
     queued and this returns at once (unless ``tol`` needs the swarm's progress).
+    ``split``: CPU devices (:func:`~swarmcurves_jax.devices.cpu_devices`) to deal the
+    swarms over, one program each, run at once from threads (without a mesh, callback or
+    bar); the refinement is still one program, and every result equals the unsplit call's.
     """
     start = time.perf_counter() if start is None else start
     first = preps[0]
@@ -837,8 +875,6 @@ def _launch(
     boxes = pso.Box(*(np.stack(parts) for parts in zip(*(built[id(p)][0] for p in padded))))
     seeds = np.stack([built[id(p)][1] for p in padded])
     state = _empty_state(len(padded), len(pairs), opts.particles, space.size, dtype)
-    per_curve = (state, boxes, seeds, stack("data"), stack("mask"), stack("key_data"))
-    state, boxes, seeds, data, mask, keys = place.curves(per_curve)
     bases = tuple(
         stack_bases(pairs[i:j], space.closed, samples, space.n_pad, dtype)
         for _, i, j, samples in groups
@@ -854,18 +890,12 @@ def _launch(
         for _, i, j, samples in groups
     )
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
-    shared = (
-        params,
-        bases,
-        np.array(pairs, np.int32),
-        np.asarray(-1.0 if tol is None else tol, dtype),
-        np.asarray(iterations, np.int32),
-    )
-    params, bases, pair_ids, tol_arr, max_steps = place.shared(shared)
+    pair_ids = np.array(pairs, np.int32)
+    tol_arr = np.asarray(-1.0 if tol is None else tol, dtype)
+    max_steps = np.asarray(iterations, np.int32)
     steps = min(opts.chunk_size, iterations)
     seeded = opts.init == "lsq"
-    history, done, stop_reason = [], 0, "iterations"
-    stopped = np.full(num, -1)  # per curve: the iteration after which tol was reached
+    stop_reason = "iterations"
 
     def report(at, best):
         if bar is not None:
@@ -874,11 +904,18 @@ def _launch(
         if callback is not None:
             callback(min(at, iterations), best[:num])
 
-    # Without tol, progress reports read the previous chunk's result after the next chunk
-    # is queued, so the device never waits for the host.
-    pending = None
-    try:
-        while done < iterations:
+    def swarm(run, state, boxes, seeds, pair_ids, bases, groups, place):
+        """The swarm loop of these swarms on ``place``.  It keeps in ``run`` the state, the
+        per-chunk histories, the iterations done and, per curve, the iteration after which
+        it reached tol (-1: not yet): a Ctrl-C leaves the last whole chunk's there."""
+        per_curve = (state, boxes, seeds, stack("data"), stack("mask"), stack("key_data"))
+        state, boxes, seeds, data, mask, keys = place.curves(per_curve)
+        shared = place.shared((pair_ids, params, bases, tol_arr, max_steps))
+        run.update(state=state, history=[], done=0, stopped=np.full(num, -1))
+        # Without tol, progress reports read the previous chunk's result after the next
+        # chunk is queued, so the device never waits for the host.
+        pending = None
+        while run["done"] < iterations:
             state, info = _swarm_program(
                 keys,
                 state,
@@ -886,7 +923,7 @@ def _launch(
                 seeds,
                 data,
                 mask,
-                (pair_ids, params, bases, tol_arr, max_steps),
+                shared,
                 space=space,
                 num_particles=opts.particles,
                 num_steps=steps,
@@ -895,29 +932,78 @@ def _launch(
                 mesh=place.mesh,
                 batch=place.batch,
             )
-            history.append(info.best_fitness)
-            done += steps
+            run["state"] = state
+            run["history"].append(info.best_fitness)
+            run["done"] += steps
             if tol is not None:
                 best = np.asarray(place.get(state.best_fitness))
-                report(done, best)
+                report(run["done"], best)
                 reached = np.all(best[:num] <= tol, axis=1)
-                stopped = np.where(reached & (stopped < 0), done, stopped)
+                run["stopped"] = np.where(
+                    reached & (run["stopped"] < 0), run["done"], run["stopped"]
+                )
                 if np.all(reached):
-                    stop_reason = "tol"
                     break
             elif callback is not None or bar is not None:
                 if pending is not None:
                     report(pending[0], np.asarray(place.get(pending[1])))
-                pending = (done, state.best_fitness)
+                pending = (run["done"], state.best_fitness)
         if pending is not None:
             report(pending[0], np.asarray(place.get(pending[1])))
+
+    def part(chosen, device):
+        """:func:`swarm` of the swarms ``chosen`` on ``device``, back on the host."""
+        own, taken = _part_groups(groups, chosen)
+        pick = lambda tree: jax.tree_util.tree_map(lambda a: a[:, chosen], tree)  # noqa: E731
+        own_bases = tuple(jax.tree_util.tree_map(lambda a, w=w: a[w], bases[g]) for g, w in taken)
+        run = {}
+        swarm(
+            run,
+            pick(state),
+            pick(boxes),
+            seeds[:, chosen],
+            pair_ids[chosen],
+            own_bases,
+            own,
+            Placement(device=device),
+        )
+        run["state"] = jax.tree_util.tree_map(np.asarray, run["state"])
+        run["history"] = np.concatenate([np.asarray(h) for h in run["history"]], axis=2)
+        return run
+
+    parts = [] if not split or place.mesh is not None else _split_swarms(groups, len(split))
+    run = {"state": state, "history": [], "done": 0, "stopped": np.full(num, -1)}
+    try:
+        if len(parts) > 1:
+            with ThreadPoolExecutor(len(parts)) as pool:
+                ran = list(pool.map(part, parts, split))
+            order = np.argsort(np.concatenate(parts))
+            merged = lambda *a: np.concatenate(a, axis=1)[:, order]  # noqa: E731
+            done = max(r["done"] for r in ran)
+            # A part that reached tol sooner stopped sooner; the unsplit loop would have
+            # gone on recording its swarms' (frozen) best until the last part stopped.
+            pad = lambda h: np.pad(h, ((0, 0), (0, 0), (0, done - h.shape[2])), mode="edge")  # noqa: E731
+            stopped = np.stack([r["stopped"] for r in ran])
+            run = {
+                "state": place.curves(jax.tree_util.tree_map(merged, *(r["state"] for r in ran))),
+                "history": [merged(*(pad(r["history"]) for r in ran))],
+                "done": done,
+                "stopped": np.where(np.all(stopped >= 0, axis=0), stopped.max(axis=0), -1),
+            }
+        else:
+            swarm(run, state, boxes, seeds, pair_ids, bases, groups, place)
+        if tol is not None and np.all(run["stopped"] >= 0):
+            stop_reason = "tol"
     except KeyboardInterrupt:
         if not catch_interrupt:
             raise
         stop_reason = "interrupted"
-    if not history:
+    if not run["history"]:
         raise KeyboardInterrupt
+    state, history, done, stopped = run["state"], run["history"], run["done"], run["stopped"]
 
+    per_curve = (boxes, seeds, stack("data"), stack("mask"))
+    boxes, seeds, data, mask = place.curves(per_curve)
     timings = {}
     if sync:
         place.get(state.best_fitness)
@@ -930,7 +1016,7 @@ def _launch(
             seeds,
             data,
             mask,
-            (pair_ids, refine_bases),
+            place.shared((pair_ids, refine_bases)),
             space=space,
             method=opts.method,
             seeded=seeded,

@@ -152,6 +152,45 @@ def test_sharded_over_forced_host_devices_matches_and_splits_the_work(lone):
     _match_across_devices(got, _some(lone))
 
 
+#: fit calls whose swarms a machine of several CPU devices splits (tests below).
+SPLIT = [
+    dict(cps=[4, 5, 6], degrees=(1, 2, 3), iterations=60, particles=16, seed=3),
+    dict(cps=[4, 6], degrees=(2, 3), iterations=400, particles=16, tol=1.4e-2, chunk_size=50),
+]
+
+
+def _split_fits():
+    sets = _sets()
+    return [fit(sets[1], **SPLIT[0]), fit(sets[4], closed=True, **SPLIT[1])]
+
+
+def test_fit_split_over_cpu_devices_matches_one_program():
+    """With several CPU devices fit deals its swarms over them, one program each, and
+    refines in one program: every solution, history and stop equal one device's."""
+    from swarmcurves_jax.fit import _split_swarms
+
+    # by cost (samples + 10): the six 12-sample swarms alternate, then the three
+    # polygons go to the least loaded: 102 against 84
+    groups = ((1, 0, 3, 8), (2, 3, 6, 12), (3, 6, 9, 12))
+    assert [s.tolist() for s in _split_swarms(groups, 2)] == [[0, 2, 3, 5, 7], [1, 4, 6, 8]]
+    assert sorted(s.tolist() for s in _split_swarms(groups, 20)) == [[i] for i in range(9)]
+    code = """
+        import json, jax
+        jax.config.update("jax_num_cpu_devices", 2)
+        import tests.test_batch as tb
+        from swarmcurves_jax.devices import cpu_devices
+        got = tb._split_fits()
+        print(json.dumps({"devices": len(cpu_devices()), "stops": [r.stop_reason for r in got],
+                          "solutions": tb._solutions(got), "histories": tb._histories(got)}))
+    """
+    got = json.loads(_run_script(code, {"PYTHONPATH": os.getcwd()}).splitlines()[-1])
+    lone = _split_fits()
+    assert got["devices"] == 2
+    assert got["stops"] == [r.stop_reason for r in lone] == ["iterations", "tol"]
+    assert lone[1].history.shape[1] < 400  # the tol case stopped early, as one program
+    _match_across_devices(got, lone)
+
+
 def _free_port():
     with socket.socket() as s:
         s.bind(("localhost", 0))
