@@ -483,7 +483,10 @@ def fit(
 
     Each (degree, n) pair is an independent particle swarm (SPEC §1); all swarms of the
     call run in one jit-compiled program, on the default JAX device (a GPU if JAX sees
-    one).  Reported errors are true point-to-curve distances in the normalised frame.
+    one); when JAX has several CPU devices (``jax_num_cpu_devices``), the swarms are
+    dealt over them, one program each, with the same results
+    (:func:`~swarmcurves_jax.devices.cpu_devices`).  Reported errors are true
+    point-to-curve distances in the normalised frame.
 
     Parameters
     ----------
