@@ -31,7 +31,7 @@ def cpu_devices() -> list:
     CPU devices use them better (measured on W1's fitness: 2.3 against 2.8 ms per
     iteration on 2 cores), so :func:`swarmcurves_jax.fit` splits its swarms over these
     devices.  JAX makes one CPU device unless told otherwise before it starts:
-    ``jax.config.update("jax_num_cpu_devices", os.cpu_count())`` (the command line does).
+    ``jax.config.update("jax_num_cpu_devices", os.cpu_count())`` right after ``import jax``.
     """
     if jax.default_backend() != "cpu" or jax.process_count() > 1:
         return []

@@ -6,6 +6,8 @@ import functools
 import inspect
 import math
 import os
+import queue
+import threading
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -578,7 +580,7 @@ def fit(
             bar=bar,
             catch_interrupt=True,
             start=start,
-            split=None if callback or bar else cpu_devices(),
+            split=cpu_devices(),
         )
     finally:
         if bar is not None:
@@ -848,8 +850,9 @@ def _launch(
     ``sync`` the swarm is waited for before the refinement, to time each; without, both are
     queued and this returns at once (unless ``tol`` needs the swarm's progress).
     ``split``: CPU devices (:func:`~swarmcurves_jax.devices.cpu_devices`) to deal the
-    swarms over, one program each, run at once from threads (without a mesh, callback or
-    bar); the refinement is still one program, and every result equals the unsplit call's.
+    swarms over (without a mesh), one program each, run at once from threads, whose chunks
+    this thread reports in order; the refinement is one program, and every result equals
+    the unsplit call's.
     """
     start = time.perf_counter() if start is None else start
     first = preps[0]
@@ -907,10 +910,13 @@ def _launch(
         if callback is not None:
             callback(min(at, iterations), best[:num])
 
-    def swarm(run, state, boxes, seeds, pair_ids, bases, groups, place):
-        """The swarm loop of these swarms on ``place``.  It keeps in ``run`` the state, the
-        per-chunk histories, the iterations done and, per curve, the iteration after which
-        it reached tol (-1: not yet): a Ctrl-C leaves the last whole chunk's there."""
+    watch = callback is not None or bar is not None
+
+    def swarm(run, state, boxes, seeds, pair_ids, bases, groups, place, report, stop):
+        """The swarm loop of these swarms on ``place``, until done or ``stop`` is set.  It
+        keeps in ``run`` the state, the per-chunk histories, the iterations done and, per
+        curve, the iteration after which it reached tol (-1: not yet): a Ctrl-C leaves the
+        last whole chunk's there.  ``report(iteration, best)`` follows the chunks."""
         per_curve = (state, boxes, seeds, stack("data"), stack("mask"), stack("key_data"))
         state, boxes, seeds, data, mask, keys = place.curves(per_curve)
         shared = place.shared((pair_ids, params, bases, tol_arr, max_steps))
@@ -918,7 +924,7 @@ def _launch(
         # Without tol, progress reports read the previous chunk's result after the next
         # chunk is queued, so the device never waits for the host.
         pending = None
-        while run["done"] < iterations:
+        while run["done"] < iterations and not (stop.is_set() and run["history"]):
             state, info = _swarm_program(
                 keys,
                 state,
@@ -940,48 +946,85 @@ def _launch(
             run["done"] += steps
             if tol is not None:
                 best = np.asarray(place.get(state.best_fitness))
-                report(run["done"], best)
+                if watch:
+                    report(run["done"], best)
                 reached = np.all(best[:num] <= tol, axis=1)
                 run["stopped"] = np.where(
                     reached & (run["stopped"] < 0), run["done"], run["stopped"]
                 )
                 if np.all(reached):
                     break
-            elif callback is not None or bar is not None:
+            elif watch:
                 if pending is not None:
                     report(pending[0], np.asarray(place.get(pending[1])))
                 pending = (run["done"], state.best_fitness)
         if pending is not None:
             report(pending[0], np.asarray(place.get(pending[1])))
 
-    def part(chosen, device):
-        """:func:`swarm` of the swarms ``chosen`` on ``device``, back on the host."""
+    parts = [] if not split or place.mesh is not None else _split_swarms(groups, len(split))
+    order = np.argsort(np.concatenate(parts)) if parts else None
+    events, stop = queue.Queue(), threading.Event()
+
+    def part(i):
+        """:func:`swarm` of the swarms ``parts[i]`` on ``split[i]``, back on the host; its
+        reports go to ``events``, for the calling thread to merge."""
+        chosen = parts[i]
         own, taken = _part_groups(groups, chosen)
         pick = lambda tree: jax.tree_util.tree_map(lambda a: a[:, chosen], tree)  # noqa: E731
         own_bases = tuple(jax.tree_util.tree_map(lambda a, w=w: a[w], bases[g]) for g, w in taken)
         run = {}
-        swarm(
-            run,
-            pick(state),
-            pick(boxes),
-            seeds[:, chosen],
-            pair_ids[chosen],
-            own_bases,
-            own,
-            Placement(device=device),
-        )
+        try:
+            swarm(
+                run,
+                pick(state),
+                pick(boxes),
+                seeds[:, chosen],
+                pair_ids[chosen],
+                own_bases,
+                own,
+                Placement(device=split[i]),
+                lambda at, best: events.put((i, at, best)),
+                stop,
+            )
+        finally:
+            events.put((i, None, None))  # this part is done (or failed)
         run["state"] = jax.tree_util.tree_map(np.asarray, run["state"])
         run["history"] = np.concatenate([np.asarray(h) for h in run["history"]], axis=2)
         return run
 
-    parts = [] if not split or place.mesh is not None else _split_swarms(groups, len(split))
+    def merged(*a):
+        """The parts' arrays (curve, swarm, ...) as one, in call order."""
+        return np.concatenate(a, axis=1)[:, order]
+
+    def relay():
+        """Report the parts' chunks in order, each once every part has reached it (a part
+        that stopped at tol stays at its last, frozen best), until every part is done."""
+        seen, last, finished, shown = [{} for _ in parts], [None] * len(parts), set(), 0
+        while len(finished) < len(parts):
+            i, at, best = events.get()
+            if at is None:
+                finished.add(i)
+            else:
+                seen[i][at], last[i] = best, best
+            while any(shown + steps in x for x in seen) and all(
+                shown + steps in seen[j] or (j in finished and last[j] is not None)
+                for j in range(len(parts))
+            ):
+                shown += steps
+                report(shown, merged(*(x.pop(shown, last[j]) for j, x in enumerate(seen))))
+
     run = {"state": state, "history": [], "done": 0, "stopped": np.full(num, -1)}
     try:
         if len(parts) > 1:
+            interrupted = False
             with ThreadPoolExecutor(len(parts)) as pool:
-                ran = list(pool.map(part, parts, split))
-            order = np.argsort(np.concatenate(parts))
-            merged = lambda *a: np.concatenate(a, axis=1)[:, order]  # noqa: E731
+                futures = [pool.submit(part, i) for i in range(len(parts))]
+                try:
+                    relay()
+                except KeyboardInterrupt:  # the parts stop after their current chunk
+                    stop.set()
+                    interrupted = True
+                ran = [f.result() for f in futures]
             done = max(r["done"] for r in ran)
             # A part that reached tol sooner stopped sooner; the unsplit loop would have
             # gone on recording its swarms' (frozen) best until the last part stopped.
@@ -993,8 +1036,10 @@ def _launch(
                 "done": done,
                 "stopped": np.where(np.all(stopped >= 0, axis=0), stopped.max(axis=0), -1),
             }
+            if interrupted:
+                raise KeyboardInterrupt
         else:
-            swarm(run, state, boxes, seeds, pair_ids, bases, groups, place)
+            swarm(run, state, boxes, seeds, pair_ids, bases, groups, place, report, stop)
         if tol is not None and np.all(run["stopped"] >= 0):
             stop_reason = "tol"
     except KeyboardInterrupt:

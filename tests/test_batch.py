@@ -155,18 +155,35 @@ def test_sharded_over_forced_host_devices_matches_and_splits_the_work(lone):
 #: fit calls whose swarms a machine of several CPU devices splits (tests below).
 SPLIT = [
     dict(cps=[4, 5, 6], degrees=(1, 2, 3), iterations=60, particles=16, seed=3),
-    dict(cps=[4, 6], degrees=(2, 3), iterations=400, particles=16, tol=1.4e-2, chunk_size=50),
+    dict(
+        cps=[4, 6],
+        degrees=(2, 3),
+        iterations=400,
+        particles=16,
+        tol=1.4e-2,
+        chunk_size=50,
+        refine=False,
+    ),
 ]
 
 
 def _split_fits():
-    sets = _sets()
-    return [fit(sets[1], **SPLIT[0]), fit(sets[4], closed=True, **SPLIT[1])]
+    """The :data:`SPLIT` fits, and every ``callback(iteration, best)`` of the second."""
+    sets, calls = _sets(), []
+    first = fit(sets[1], **SPLIT[0])
+    second = fit(
+        sets[4],
+        closed=True,
+        callback=lambda at, best: calls.append([at, best.tolist()]),
+        **SPLIT[1],
+    )
+    return [first, second], calls
 
 
 def test_fit_split_over_cpu_devices_matches_one_program():
     """With several CPU devices fit deals its swarms over them, one program each, and
-    refines in one program: every solution, history and stop equal one device's."""
+    refines in one program: every solution, history, stop and callback equals one
+    device's (in the tol case one part stops a chunk before the other)."""
     from swarmcurves_jax.fit import _split_swarms
 
     # by cost (samples + 10): the six 12-sample swarms alternate, then the three
@@ -179,15 +196,17 @@ def test_fit_split_over_cpu_devices_matches_one_program():
         jax.config.update("jax_num_cpu_devices", 2)
         import tests.test_batch as tb
         from swarmcurves_jax.devices import cpu_devices
-        got = tb._split_fits()
+        got, calls = tb._split_fits()
         print(json.dumps({"devices": len(cpu_devices()), "stops": [r.stop_reason for r in got],
-                          "solutions": tb._solutions(got), "histories": tb._histories(got)}))
+                          "solutions": tb._solutions(got), "histories": tb._histories(got),
+                          "calls": calls}))
     """
     got = json.loads(_run_script(code, {"PYTHONPATH": os.getcwd()}).splitlines()[-1])
-    lone = _split_fits()
+    lone, calls = _split_fits()
     assert got["devices"] == 2
     assert got["stops"] == [r.stop_reason for r in lone] == ["iterations", "tol"]
-    assert lone[1].history.shape[1] < 400  # the tol case stopped early, as one program
+    assert [at for at, _ in calls] == [50, 100] and lone[1].history.shape[1] == 100
+    assert got["calls"] == json.loads(json.dumps(calls))
     _match_across_devices(got, lone)
 
 
