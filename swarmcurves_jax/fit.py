@@ -781,22 +781,39 @@ def _run_group(preps, opts: _Options, **kwargs) -> list[FitResult]:
 
 
 def _split_swarms(groups, parts: int) -> list[np.ndarray]:
-    """The swarms of a call dealt into at most ``parts`` sets of similar cost (each to the
-    least loaded set when its turn comes, the costliest first), each set in call order.
+    """The swarms of a call dealt into at most ``parts`` sets of similar cost, each set in
+    call order.  Each set compiles a program with its own degree groups, so whole groups
+    are dealt first (the costliest to the least loaded set); then single swarms move from
+    the most to the least loaded set while that set stays below the other: freely within
+    a degree it already has, and to start a new degree there only 5 % below.
 
     A swarm's cost is its group's search samples plus 10, a rough count of the work per
     point after the search (``benchmarks/bench_w1.py`` times the result).
     """
+    count = min(parts, groups[-1][2])
+    sets, load = [[] for _ in range(count)], np.zeros(count)
     cost = np.zeros(groups[-1][2])
-    for _, i, j, samples in groups:
-        cost[i:j] = samples + 10
-    count = min(parts, len(cost))
-    load, sets = np.zeros(count), [[] for _ in range(count)]
-    for i in sorted(range(len(cost)), key=lambda i: (-cost[i], i)):
+    degree = np.zeros(groups[-1][2], int)
+    for k, i, j, samples in groups:
+        cost[i:j], degree[i:j] = samples + 10, k
+    for k, i, j, _ in sorted(groups, key=lambda g: (-cost[g[1]] * (g[2] - g[1]), g[1])):
         d = int(np.argmin(load))
-        load[d] += cost[i]
-        sets[d].append(i)
-    return [np.array(sorted(x)) for x in sets]
+        sets[d] += range(i, j)
+        load[d] += cost[i:j].sum()
+    while True:
+        top, low = int(np.argmax(load)), int(np.argmin(load))
+        best = None
+        for i in sorted(sets[top], key=lambda i: (-cost[i], i)):
+            known = degree[i] in degree[sets[low]]
+            if load[low] + cost[i] < load[top] * (1.0 if known else 0.95):
+                best = i
+                break
+        if best is None:
+            return [np.array(sorted(x)) for x in sets if x]
+        sets[top].remove(best)
+        sets[low].append(best)
+        load[top] -= cost[best]
+        load[low] += cost[best]
 
 
 def _part_groups(groups, chosen: np.ndarray):

@@ -186,11 +186,12 @@ def test_fit_split_over_cpu_devices_matches_one_program():
     device's (in the tol case one part stops a chunk before the other)."""
     from swarmcurves_jax.fit import _split_swarms
 
-    # by cost (samples + 10): the six 12-sample swarms alternate, then the three
-    # polygons go to the least loaded: 102 against 84
+    # whole degrees first (degree 2's 66 to one, degree 3's 66 to the other, the polygons'
+    # 54 to the first), then one degree-2 swarm over: 98 against 88
     groups = ((1, 0, 3, 8), (2, 3, 6, 12), (3, 6, 9, 12))
-    assert [s.tolist() for s in _split_swarms(groups, 2)] == [[0, 2, 3, 5, 7], [1, 4, 6, 8]]
+    assert [s.tolist() for s in _split_swarms(groups, 2)] == [[0, 1, 2, 4, 5], [3, 6, 7, 8]]
     assert sorted(s.tolist() for s in _split_swarms(groups, 20)) == [[i] for i in range(9)]
+    assert [s.tolist() for s in _split_swarms(((3, 0, 7, 28),), 2)] == [[3, 4, 5, 6], [0, 1, 2]]
     code = """
         import json, jax
         jax.config.update("jax_num_cpu_devices", 2)
