@@ -2,7 +2,9 @@
 
 import csv
 import json
+import os
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -194,7 +196,6 @@ def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig
             "swarmcurves_jax.run",
             "--iterations",
             "200000",
-            "--quiet",
             "--out",
             str(tmp_path / "o"),
         ],
@@ -203,7 +204,13 @@ def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig
         text=True,
     ) as proc:  # closes the pipes and reaps the process even when the test fails
         try:
-            time.sleep(12)  # compile and run a few chunks
+            # Signal once the progress bar shows a finished chunk: after compiling (a fixed
+            # sleep raced the compilation on a slow machine), while the swarm runs.
+            seen, deadline = "", time.monotonic() + 120
+            while not re.search(r"[1-9]\d*/200000", seen) and time.monotonic() < deadline:
+                if select.select([proc.stderr], [], [], 1.0)[0]:
+                    seen += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+            assert re.search(r"[1-9]\d*/200000", seen), seen[-2000:]
             proc.send_signal(sig)
             out, err = proc.communicate(timeout=120)
         finally:
