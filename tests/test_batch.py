@@ -154,7 +154,7 @@ def test_sharded_over_forced_host_devices_matches_and_splits_the_work(lone):
 
 #: fit calls whose swarms a machine of several CPU devices splits (tests below).
 SPLIT = [
-    dict(cps=[4, 5, 6], degrees=(1, 2, 3), iterations=60, particles=16, seed=3),
+    dict(cps=[4, 6], degrees=(2, 3), iterations=60, particles=16, seed=3),
     dict(
         cps=[4, 6],
         degrees=(2, 3),
