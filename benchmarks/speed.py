@@ -341,7 +341,6 @@ MEMORY_SNIPPET = """
 import sys, numpy as np
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
-from swarmcurves_jax.devices import cpu_devices
 n = int(sys.argv[1]); it = int(sys.argv[2])
 if n == 200:
     pts = analytic_points("f4")

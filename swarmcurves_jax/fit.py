@@ -898,6 +898,7 @@ def _launch(
     boxes = pso.Box(*(np.stack(parts) for parts in zip(*(built[id(p)][0] for p in padded))))
     seeds = np.stack([built[id(p)][1] for p in padded])
     state = _empty_state(len(padded), len(pairs), opts.particles, space.size, dtype)
+    data, mask, keys = stack("data"), stack("mask"), stack("key_data")
     bases = tuple(
         stack_bases(pairs[i:j], space.closed, samples, space.n_pad, dtype)
         for _, i, j, samples in groups
@@ -933,22 +934,25 @@ def _launch(
         """The swarm loop of these swarms on ``place``, until done or ``stop`` is set.  It
         keeps in ``run`` the state, the per-chunk histories, the iterations done and, per
         curve, the iteration after which it reached tol (-1: not yet): a Ctrl-C leaves the
-        last whole chunk's there.  ``report(iteration, best)`` follows the chunks."""
-        per_curve = (state, boxes, seeds, stack("data"), stack("mask"), stack("key_data"))
-        state, boxes, seeds, data, mask, keys = place.curves(per_curve)
+        last whole chunk's there, and its placed inputs for the refinement.
+        ``report(iteration, best)`` follows the chunks."""
+        state, boxes, seeds, dev_data, dev_mask, dev_keys = place.curves(
+            (state, boxes, seeds, data, mask, keys)
+        )
         shared = place.shared((pair_ids, params, bases, tol_arr, max_steps))
         run.update(state=state, history=[], done=0, stopped=np.full(num, -1))
+        run["inputs"] = boxes, seeds, dev_data, dev_mask
         # Without tol, progress reports read the previous chunk's result after the next
         # chunk is queued, so the device never waits for the host.
         pending = None
         while run["done"] < iterations and not (stop.is_set() and run["history"]):
             state, info = _swarm_program(
-                keys,
+                dev_keys,
                 state,
                 boxes,
                 seeds,
-                data,
-                mask,
+                dev_data,
+                dev_mask,
                 shared,
                 space=space,
                 num_particles=opts.particles,
@@ -1066,15 +1070,14 @@ def _launch(
     if not run["history"]:
         raise KeyboardInterrupt
     state, history, done, stopped = run["state"], run["history"], run["done"], run["stopped"]
-
-    per_curve = (boxes, seeds, stack("data"), stack("mask"))
-    boxes, seeds, data, mask = place.curves(per_curve)
     timings = {}
     if sync:
         place.get(state.best_fitness)
         timings["swarm"] = time.perf_counter() - start
     refined = None
     if opts.method is not None and stop_reason != "interrupted":
+        # The lone loop's placed inputs; a split's were on the parts' devices.
+        boxes, seeds, data, mask = run.get("inputs") or place.curves((boxes, seeds, data, mask))
         refined = _refine_program(
             state,
             boxes,
