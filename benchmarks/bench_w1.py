@@ -2,6 +2,7 @@
 64 particles, 2000 iterations, float32.
 
     python benchmarks/bench_w1.py [--iterations 2000] [--repeats 3] [--refine lm]
+                                  [--cpu-devices N] [--search-every N]
 
 W1 is the swarm alone (``refine=False``), the workload peers are compared on; ``--refine lm``
 adds the default refinement and prints its share (``FitResult.timings``).  Prints the cold
@@ -54,6 +55,7 @@ def main(argv=None):
         help="also time warm runs with the progress bar on (its overhead)",
     )
     ap.add_argument("--refine", choices=("none", "lm", "lbfgs"), default="none")
+    ap.add_argument("--search-every", type=int, default=1, help="fit's search_every")
     ap.add_argument(
         "--cpu-devices",
         type=int,
@@ -70,6 +72,7 @@ def main(argv=None):
         iterations=args.iterations,
         seed=0,
         refine=False if args.refine == "none" else args.refine,
+        search_every=args.search_every,
     )
     t0 = time.perf_counter()
     result = fit(pts, **kwargs)
@@ -96,7 +99,8 @@ def main(argv=None):
     print(
         f"device        : {jax.devices()[0].device_kind} ({jax.default_backend()}), "
         f"{platform.processor() or platform.machine()}, jax {jax.__version__}; "
-        f"{len(cpu_devices()) or 1} program(s) at once (--cpu-devices {args.cpu_devices})"
+        f"{len(cpu_devices()) or 1} program(s) at once (--cpu-devices {args.cpu_devices}), "
+        f"search_every={args.search_every}"
     )
     print(
         f"workload      : 21 swarms x {args.particles} particles x {args.iterations} "

@@ -3,6 +3,7 @@
     python benchmarks/speed.py [--quick] [--out DIR] [--skip peers,scaling,memory,roofline]
                                [--only memory,...]   # rerun sections into the last report
                                [--cpu-devices N]     # default: one per core
+                               [--search-every N]    # fit's search_every, peers too
 
 Ours runs with one JAX CPU device per core (``--cpu-devices``), so ``fit`` deals its swarms
 over them, one program each (README, "Several CPU devices"); the peers run as before.
@@ -17,9 +18,11 @@ What it measures, all with ``refine=False`` (the swarm alone, the workload peers
   a straightforward NumPy PSO with the same fitness written in NumPy (vectorised over
   particles, one swarm at a time); pyswarms ``GlobalBestPSO`` with that NumPy fitness, one run
   per swarm; evosax's ``PSO`` with our JAX fitness, vmapped over the 21 swarms and scanned,
-  jit-compiled.  NumPy and pyswarms run ``--peer-iterations`` (default 50) iterations and
-  are scaled linearly to 2000 (their cost per iteration is constant), which the table says.
-  evosax runs the full 2000.  Ratios are peer time / ours (warm).
+  jit-compiled.  With ``--search-every N`` (``fit``'s ``search_every``, default 1) ours
+  and every peer search every N-th evaluation and reuse the last search in between.
+  NumPy and pyswarms run 63 iterations (64 evaluations: whole search periods) and are
+  scaled linearly by evaluations to 2000 iterations, which the table says.  evosax runs the
+  full 2000.  Ratios are peer time / ours (warm).
 - **Scaling** (warm seconds, min of 2, at 100 and 200 iterations, the difference scaled to
   2000): against N (100 ... 5,000 points, every point in the fitness), particles (16 ... 512),
   swarms (1 ... 64; degree 2-5 pairs with n <= 25 and 128 samples, so every swarm costs the
@@ -53,7 +56,7 @@ from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
 from swarmcurves_jax.devices import cpu_devices
 from swarmcurves_jax.fit import _degree_groups, normalise, stack_bases
-from swarmcurves_jax.fitness import NEWTON_STEPS, point_distances
+from swarmcurves_jax.fitness import NEWTON_STEPS, foot_samples, point_distances
 from swarmcurves_jax.pso import default_params
 
 REPO = Path(__file__).resolve().parents[1]
@@ -85,21 +88,31 @@ def w1_problem(dtype=np.float32):
     return pts, groups, bases
 
 
-def numpy_fitness(positions, basis, points, k, newton_steps=NEWTON_STEPS):
+def searches(evaluation, k, every):
+    """Whether ``fit``'s swarm searches the nearest samples at this evaluation (0: the
+    first) of a degree-``k`` swarm, or reuses the last search's (``search_every``)."""
+    return k == 1 or evaluation % every == 0
+
+
+def numpy_fitness(positions, basis, points, k, feet=None, newton_steps=NEWTON_STEPS):
     """Our fitness (:func:`swarmcurves_jax.fitness.point_distances`: nearest tangent-segment
     sample, then safeguarded Newton on the span's exact polynomial, extended into its
-    neighbours) for one swarm of degree ``k``, vectorised over particles in NumPy."""
+    neighbours) for one swarm of degree ``k``, vectorised over particles in NumPy; ``feet``
+    (P, N): the samples of an earlier search to start from instead of searching.  Returns
+    the fitness (P,) and the feet."""
     num, dim = positions.shape[0], points.shape[1]
     ctrl = positions.reshape(num, -1, dim)
     n = ctrl.shape[1]
     table, lo_s, hi_s = basis.table[:, :, :n], basis.lo, basis.hi
-    samples = np.einsum("mn,pnd->pmd", basis.sample_value[:, :n], ctrl)
-    tang = np.einsum("mn,pnd->pmd", basis.sample_tangent[:, :n], ctrl)
-    diff = points[None, :, None, :] - samples[:, None, :, :]  # (P, N, M, D)
-    along = np.einsum("pnmd,pmd->pnm", diff, tang)
-    len2 = np.maximum(np.sum(tang**2, axis=2), 1e-30)[:, None, :]
-    s = np.clip(along / len2, -1.0, 1.0)
-    j = np.argmin(np.sum(diff**2, axis=3) - s * (2.0 * along - s * len2), axis=2)  # (P, N)
+    if feet is None:
+        samples = np.einsum("mn,pnd->pmd", basis.sample_value[:, :n], ctrl)
+        tang = np.einsum("mn,pnd->pmd", basis.sample_tangent[:, :n], ctrl)
+        diff = points[None, :, None, :] - samples[:, None, :, :]  # (P, N, M, D)
+        along = np.einsum("pnmd,pmd->pnm", diff, tang)
+        len2 = np.maximum(np.sum(tang**2, axis=2), 1e-30)[:, None, :]
+        s = np.clip(along / len2, -1.0, 1.0)
+        feet = np.argmin(np.sum(diff**2, axis=3) - s * (2.0 * along - s * len2), axis=2)
+    j = feet  # (P, N)
     per, spans = int(basis.per_span), int(basis.num_spans)
     span = np.minimum(j // per, spans - 1)
     tau = np.clip((j - span * per + 0.5) / per, 0.5 / per, 1 - 0.5 / per)
@@ -133,34 +146,43 @@ def numpy_fitness(positions, basis, points, k, newton_steps=NEWTON_STEPS):
         tau = np.clip(tau - np.clip(g / np.maximum(h, 1e-30), -0.5, 0.5), lo, hi)
     q2 = np.sum((curve(tau)[0] - points[None]) ** 2, axis=2)
     dist = np.sqrt(np.minimum(q2, np.sum(start**2, axis=2)) + 1e-30)
-    return dist.mean(axis=1)
+    return dist.mean(axis=1), feet
 
 
-def numpy_pso(basis, points, dim, k, iterations, particles=64, seed=0):
+def numpy_pso(basis, points, dim, k, iterations, every=1, particles=64, seed=0):
     """The paper's PSO update (SPEC §1) with our defaults, in plain NumPy."""
     p = default_params()
     rng = np.random.default_rng(seed)
     q = rng.uniform(-1, 1, (particles, dim)).astype(np.float32)
     v = np.zeros_like(q)
-    f = numpy_fitness(q, basis, points, k)
+    f, feet = numpy_fitness(q, basis, points, k)
     pbest, pbest_f = q.copy(), f.copy()
-    for _ in range(iterations):
+    for i in range(1, iterations + 1):
         g = pbest[np.argmin(pbest_f)]
         r1, r2 = rng.random((2, particles, dim), dtype=np.float32)
         v = p.inertia * v + p.cognitive * r1 * (pbest - q) + p.social * r2 * (g - q)
         v = np.clip(v, -p.v_max, p.v_max)
         q = q + v
-        f = numpy_fitness(q, basis, points, k)
+        f, feet = numpy_fitness(q, basis, points, k, None if searches(i, k, every) else feet)
         better = f < pbest_f
         pbest[better], pbest_f[better] = q[better], f[better]
     return float(pbest_f.min())
 
 
-def pyswarms_run(basis, points, dim, k, iterations, particles=64, seed=0):
+def pyswarms_run(basis, points, dim, k, iterations, every=1, particles=64, seed=0):
     import pyswarms as ps
 
     p = default_params()
     rng = np.random.default_rng(seed)
+    carried = {"evaluation": 0, "feet": None}
+
+    def cost(x):  # pyswarms evaluates the whole swarm, in a fixed order, once per iteration
+        i = carried["evaluation"]
+        feet = None if searches(i, k, every) else carried["feet"]
+        f, carried["feet"] = numpy_fitness(x.astype(np.float32), basis, points, k, feet)
+        carried["evaluation"] = i + 1
+        return f
+
     opt = ps.single.GlobalBestPSO(
         n_particles=particles,
         dimensions=dim,
@@ -168,17 +190,15 @@ def pyswarms_run(basis, points, dim, k, iterations, particles=64, seed=0):
         velocity_clamp=(-p.v_max, p.v_max),
         init_pos=rng.uniform(-1, 1, (particles, dim)),
     )
-    cost, _ = opt.optimize(
-        lambda x: numpy_fitness(x.astype(np.float32), basis, points, k),
-        iters=iterations,
-        verbose=False,
-    )
+    # pyswarms evaluates once per iteration, with no separate first evaluation
+    cost, _ = opt.optimize(cost, iters=iterations + 1, verbose=False)
     return float(cost)
 
 
-def evosax_program(groups, iterations, particles=64):
+def evosax_program(groups, iterations, every=1, particles=64):
     """evosax PSO on our JAX fitness, vmapped over the swarms of each degree group (as
-    ``fit`` runs them), one jit-compiled program of scans."""
+    ``fit`` runs them), one jit-compiled program of scans; the search runs every ``every``
+    evaluations, reused in between as ``fit`` does (evosax keeps its particles in order)."""
     from evosax.algorithms import PSO
 
     p = default_params()
@@ -189,23 +209,39 @@ def evosax_program(groups, iterations, particles=64):
     )
 
     def one_swarm(key, basis, points, k):
-        def fitness(pop):
-            def one(q):
-                return jnp.mean(point_distances(q.reshape(10, 2), None, basis, points, degree=k))
+        def fitness(pop, feet, evaluation):
+            def search():
+                return jax.vmap(
+                    lambda q: foot_samples(q.reshape(10, 2), None, basis, points, dense=False)
+                )(pop)
 
-            return jax.vmap(one)(pop)
+            def one(q, foot):
+                return jnp.mean(point_distances(q.reshape(10, 2), None, basis, points, foot, k))
+
+            if every == 1:
+                return jax.vmap(lambda q: one(q, None))(pop), feet
+            if k != 1:
+                feet = jax.lax.cond(evaluation % every == 0, search, lambda: feet)
+            else:
+                feet = search()
+            return jax.vmap(one)(pop, feet), feet
 
         k0, k1, k2 = jax.random.split(key, 3)
         pop = jax.random.uniform(k0, (particles, dim), jnp.float32, -1.0, 1.0)
-        state = es.init(k1, pop, fitness(pop), params)
+        fit0, feet = fitness(pop, jnp.zeros((particles, points.shape[0]), jnp.int32), 0)
+        state = es.init(k1, pop, fit0, params)
 
-        def step(state, key):
+        def step(carry, xs):
+            state, feet = carry
+            key, evaluation = xs
             ka, kt = jax.random.split(key)
             pop, state = es.ask(ka, state, params)
-            state, _ = es.tell(kt, pop, fitness(pop), state, params)
-            return state, None
+            fit_pop, feet = fitness(pop, feet, evaluation)
+            state, _ = es.tell(kt, pop, fit_pop, state, params)
+            return (state, feet), None
 
-        state, _ = jax.lax.scan(step, state, jax.random.split(k2, iterations))
+        xs = (jax.random.split(k2, iterations), jnp.arange(1, iterations + 1))
+        (state, _), _ = jax.lax.scan(step, (state, feet), xs)
         return state.best_fitness
 
     def program(keys, bases, points):
@@ -227,6 +263,7 @@ def section_w1(args, report):
     evals = 21 * 64 * it
     report["w1"] = {
         "programs": len(cpu_devices()) or 1,
+        "search_every": args.search_every,
         "iterations": it,
         "cold_s": cold,
         "warm_s": warm,
@@ -259,8 +296,8 @@ def section_peers(args, report):
         for (k, i, j, _), basis in zip(groups, bases):
             for s, (_, n) in enumerate(W1_PAIRS[i:j]):
                 one = jax.tree_util.tree_map(lambda a, s=s: np.asarray(a)[s], basis)
-                run(one, pts, n * 2, k, it_peer)
-        return (time.perf_counter() - t0) * it_full / it_peer, True
+                run(one, pts, n * 2, k, it_peer, args.search_every)
+        return (time.perf_counter() - t0) * (it_full + 1) / (it_peer + 1), True
 
     rows["NumPy (same fitness)"] = per_swarm(numpy_pso)
     try:
@@ -269,19 +306,20 @@ def section_peers(args, report):
         rows["pyswarms GlobalBestPSO"] = per_swarm(pyswarms_run)
     except ImportError:
         rows["pyswarms GlobalBestPSO"] = (math.nan, True)
+    keys = jax.random.split(jax.random.key(0), len(W1_PAIRS))
+    device_bases = jax.tree_util.tree_map(jnp.asarray, bases)
+    data = jnp.asarray(pts)
+    name = "evosax PSO (vmapped, our fitness)"
     try:
-        program = evosax_program(groups, it_full)
-        keys = jax.random.split(jax.random.key(0), len(W1_PAIRS))
-        device_bases = jax.tree_util.tree_map(jnp.asarray, bases)
-        data = jnp.asarray(pts)
+        program = evosax_program(groups, it_full, args.search_every)
         cold, warm, best = timed(
             lambda: jax.block_until_ready(program(keys, device_bases, data)), args.repeats
         )
-        rows["evosax PSO (vmapped, our fitness)"] = warm, False
+        rows[name] = warm, False
         report["evosax_cold_s"] = cold
         report["evosax_best_cubic_fitness"] = float(np.min(np.asarray(best)[14:]))
     except ImportError:
-        rows["evosax PSO (vmapped, our fitness)"] = (math.nan, False)
+        rows[name] = (math.nan, False)
     ours = report["w1"]["warm_s"]
     report["peers"] = {
         name: {"seconds": s, "scaled_from": it_peer if scaled else it_full, "ratio": s / ours}
@@ -368,15 +406,17 @@ def section_memory(args, report):
     print(f"peak RSS MiB: {out}", file=sys.stderr)
 
 
-def fitness_flops(n_pts, groups, bases, n_pad, dim, particles):
+def fitness_flops(n_pts, groups, bases, n_pad, dim, particles, every=1):
     """(mean FLOPs per particle-evaluation, FLOPs of one iteration of every swarm), counted
-    from the fitness's shapes; a select or a comparison counts as one operation."""
+    from the fitness's shapes; a select or a comparison counts as one operation.  The
+    search (and its samples) counts once per ``every`` evaluations, as it runs."""
     total, swarms = 0, 0
     for (k, i, j, samples), basis in zip(groups, bases):
         spans, rows = basis.table.shape[1], basis.table.shape[2]
         top = rows - 3
-        matmuls = 2 * n_pad * dim * (2 * samples + spans * rows)  # samples, tangents, table
-        search = n_pts * samples * (5 * dim + 7)  # diff, d2, along, clip, correction, min
+        every_k = 1 if k == 1 else every
+        matmuls = 2 * n_pad * dim * (2 * samples / every_k + spans * rows)  # samples, table
+        search = n_pts * samples * (5 * dim + 7) / every_k  # diff, d2, along, clip, min
         select = n_pts * spans * (rows * dim + 3)  # a where per row and column, lo, hi
         jump = 0 if k == 1 else 25 + 8 * dim  # the neighbour's polynomial past either end
         step = 6 * top * dim + jump + 10 * dim + 12  # Horner (3 orders), Newton update
@@ -396,7 +436,8 @@ def section_roofline(args, report):
     peak = 2 * size**3 / best
     _, groups, bases = w1_problem()
     samples = "/".join(str(g[3]) for g in groups)
-    per_eval, per_iter = fitness_flops(208, groups, bases, 10, 2, 64)  # 200 points padded
+    # 200 points padded to 208
+    per_eval, per_iter = fitness_flops(208, groups, bases, 10, 2, 64, args.search_every)
     warm = report["w1"]["warm_s"]
     achieved = per_iter * report["w1"]["iterations"] / warm
     report["roofline"] = {
@@ -466,6 +507,7 @@ def markdown(report) -> str:
         "|---|---|",
         f"| warm (min of {report['repeats']}) | {w1['warm_s']:.2f} s |",
         f"| swarm programs at once (one per CPU device) | {w1.get('programs', 1)} |",
+        f"| search every (fit's `search_every`, peers too) | {w1.get('search_every', 1)} |",
         f"| cold (with compilation) | {w1['cold_s']:.2f} s |",
         f"| particle-evaluations / s | {w1['evals_per_s']:.3g} |",
         f"| best cubic error | {w1['best_cubic']:.2e} |",
@@ -543,12 +585,19 @@ def main(argv=None):
         help="CPU devices JAX makes: fit deals its swarms over them (README); default one "
         "per core, 1 for one program",
     )
+    ap.add_argument(
+        "--search-every",
+        type=int,
+        default=1,
+        help="fit's search_every, for ours and the peers alike (default 1: every iteration)",
+    )
     args = ap.parse_args(argv)
     jax.config.update("jax_num_cpu_devices", args.cpu_devices)
+    W1["search_every"] = args.search_every
     skip = set(filter(None, args.skip.split(",")))
     args.iterations = 100 if args.quick else FULL_ITERATIONS
     args.repeats = 1 if args.quick else 3
-    args.peer_iterations = 5 if args.quick else 50
+    args.peer_iterations = 7 if args.quick else 63  # evaluations: whole search periods
     args.scale_iterations = 20 if args.quick else 100
     args.memory_iterations = 20 if args.quick else FULL_ITERATIONS
     args.sizes = (100, 500) if args.quick else (100, 200, 500, 1000, 2000, 5000)

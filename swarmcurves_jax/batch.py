@@ -51,6 +51,7 @@ def fit_many(
     params: pso.PSOParams | None = None,
     weight_bounds: tuple[float, float] = (1e-2, 1e2),
     num_samples: int | None = None,
+    search_every: int = 1,
     chunk_size: int = 200,
     progress: bool = False,
     max_fitness_points: int = 2000,

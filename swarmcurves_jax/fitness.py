@@ -277,15 +277,22 @@ def nearest_sample_dense(points: jax.Array, samples: jax.Array, tangents: jax.Ar
 
 
 def foot_samples(
-    ctrl: jax.Array, weights: jax.Array | None, basis: SpanBasis, points: jax.Array
+    ctrl: jax.Array,
+    weights: jax.Array | None,
+    basis: SpanBasis,
+    points: jax.Array,
+    dense: bool = True,
 ) -> jax.Array:
     """Index of the sample each point's Newton search starts from: (N,) int32.
 
     Piecewise constant in the curve, so it has no derivative: a caller that differentiates
     :func:`point_distances` computes it once and passes it, keeping the search out of the
-    differentiated graph.  Uses :func:`nearest_sample_dense` (quick to compile).
+    differentiated graph; the swarm reuses it for a few iterations.  ``dense``: with
+    :func:`nearest_sample_dense` (quick to compile), else :func:`nearest_sample` (quick
+    to run).
     """
-    return nearest_sample_dense(points, *curve_samples(ctrl, weights, basis))
+    search = nearest_sample_dense if dense else nearest_sample
+    return search(points, *curve_samples(ctrl, weights, basis))
 
 
 def _span_and_start(j: jax.Array, basis: SpanBasis, dtype):

@@ -253,16 +253,32 @@ def run_swarms(
     num_steps: int,
     tol: jax.Array | float = -1.0,
     max_steps: jax.Array | int = _NO_LIMIT,
-) -> tuple[PSOState, PSOInfo]:
+    memory=None,
+    first: jax.Array | int = 0,
+):
     """:func:`run` of independent swarms (a leading swarm axis on ``keys``, ``states`` and
     ``boxes``) in one ``lax.scan``, with one ``fitness_fn`` of all their positions
     (S, P, dim) -> (S, P): the caller may evaluate groups of swarms differently, and each
     step is one trip of one loop, not one per group.  Each swarm's result equals its
     :func:`run`.  Info is (num_steps, S).
+
+    With a ``memory`` (a pytree), the fitness carries it from step to step:
+    ``fitness_fn(positions, memory, iteration) -> (fitness, memory)``, the iteration
+    counted from ``first`` (so that a run split into chunks equals one long run); this
+    returns ``(states, memory), info``.
     """
     move = jax.vmap(update, in_axes=(0, 0, None, 0, 0, None, None))
+    if memory is None:
 
-    def body(s, _):
-        return move(keys, s, params, boxes, fitness_fn(s.position), tol, max_steps)
+        def body(s, _):
+            return move(keys, s, params, boxes, fitness_fn(s.position), tol, max_steps)
 
-    return jax.lax.scan(body, states, None, length=num_steps)
+        return jax.lax.scan(body, states, None, length=num_steps)
+
+    def remembering(carry, i):
+        s, mem = carry
+        fit, mem = fitness_fn(s.position, mem, first + i)
+        s, info = move(keys, s, params, boxes, fit, tol, max_steps)
+        return (s, mem), info
+
+    return jax.lax.scan(remembering, (states, memory), jnp.arange(num_steps, dtype=jnp.int32))

@@ -81,6 +81,12 @@ SCHEMA = {
         "int>=1?",
         "restart a swarm after this many steps without progress (null: never)",
     ),
+    "search_every": (
+        1,
+        "int>=1",
+        "search each point's nearest curve sample every this many iterations (8: about 1.5x "
+        "faster, the same mean errors, exact curves found less often; README)",
+    ),
     "seed": (0, "int>=0", "random seed"),
     "select_pct_diag": (
         0.35,
@@ -489,6 +495,7 @@ def fit_options(cfg, progress: bool) -> dict:
         free_knots=cfg["free_knots"],
         particles=cfg["particles"],
         iterations=cfg["iterations"],
+        search_every=cfg["search_every"],
         tol=cfg["tol"],
         seed=cfg["seed"],
         params=params,

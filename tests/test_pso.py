@@ -142,3 +142,27 @@ def test_uniform_draws_are_uniform_independent_and_deterministic():
     assert abs(np.corrcoef(flat[:-1], flat[1:])[0, 1]) < 0.02
     again = np.asarray(pso.uniforms(key, 3, (2, 64, 800), jnp.float32))
     np.testing.assert_array_equal(draws, again)
+
+
+def test_run_swarms_carries_a_memory_across_steps_and_chunks():
+    """A fitness with a memory sees every iteration once, in order, counted from ``first``
+    (a run cut into chunks sees the same), and the swarm is the memoryless one's."""
+    keys = jnp.stack([jax.random.key(4), jax.random.key(5)])
+    boxes = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), box(3))
+    states = jax.vmap(lambda k, b: pso.init(k, b, 8))(keys, boxes)
+    params = pso.default_params()
+
+    def fitness(positions, memory, iteration):  # memory: (evaluations, sum of iterations)
+        return sphere(positions), (memory[0] + 1, memory[1] + iteration)
+
+    start = (jnp.int32(0), jnp.int32(0))
+    (whole, memory), info = pso.run_swarms(keys, states, params, boxes, fitness, 150, memory=start)
+    assert (int(memory[0]), int(memory[1])) == (150, sum(range(150)))
+    plain, plain_info = pso.run_swarms(keys, states, params, boxes, sphere, 150)
+    (part, mem), _ = pso.run_swarms(keys, states, params, boxes, fitness, 60, memory=start)
+    (part, mem), _ = pso.run_swarms(keys, part, params, boxes, fitness, 90, memory=mem, first=60)
+    assert (int(mem[0]), int(mem[1])) == (150, sum(range(150)))
+    for a, b, c in zip(whole, plain, part):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
+    np.testing.assert_array_equal(info.best_fitness, plain_info.best_fitness)

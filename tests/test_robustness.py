@@ -77,6 +77,7 @@ BAD_INPUT = [
     ("integer dtype", dict(dtype=np.int32), "dtype must be float32 or float64"),
     ("chunk_size 0", dict(chunk_size=0), "chunk_size must be an integer >= 1"),
     ("num_samples 0", dict(num_samples=0), "num_samples must be an integer >= 1"),
+    ("search_every 0", dict(search_every=0), "search_every must be an integer >= 1"),
     (
         "max_fitness_points 0",
         dict(max_fitness_points=0),
