@@ -218,12 +218,9 @@ def evosax_program(groups, iterations, every=1, particles=64):
             def one(q, foot):
                 return jnp.mean(point_distances(q.reshape(10, 2), None, basis, points, foot, k))
 
-            if every == 1:
+            if every == 1 or k == 1:  # the search fused into every evaluation, as fit does
                 return jax.vmap(lambda q: one(q, None))(pop), feet
-            if k != 1:
-                feet = jax.lax.cond(evaluation % every == 0, search, lambda: feet)
-            else:
-                feet = search()
+            feet = jax.lax.cond(searches(evaluation, k, every), search, lambda: feet)
             return jax.vmap(one)(pop, feet), feet
 
         k0, k1, k2 = jax.random.split(key, 3)

@@ -241,7 +241,7 @@ def _swarm_program(
 ):
     """Run ``num_steps`` PSO steps of every swarm of every curve; swarms whose ``step`` is 0
     start fresh.  Per curve (leading axis): ``keys`` (key data), ``state``, ``feet`` (the
-    last search's samples, (swarms, P, N) int32; None when ``search_every`` is 1),
+    last search's samples, (swarms, P, N) int32; ``()`` when ``search_every`` is 1),
     ``boxes``, ``seeds``, ``points`` (padded to a bucket length) and ``mask`` (1 on real
     points); ``shared``: ``(pairs, params, bases, tol, max_steps)``; ``first``: the
     iteration this chunk starts at (the searches fall on multiples of ``search_every``).
@@ -266,42 +266,32 @@ def _swarm_program(
 
         run_keys, state = jax.vmap(start)(pairs, state, boxes, seeds if seeded else None)
 
-        def group_fitness(pair, positions, feet, basis, k):
+        def group_fitness(pair, positions, feet, basis, k, search):
+            """The group's fitness (P,) and feet.  The search runs inside each evaluation
+            (fused with it) when it runs every iteration: always for a polygon, whose
+            Newton step cannot leave its segment.  Else it runs every ``search_every``
+            iterations in its own branch, so that its result is stored once, not
+            recomputed by each reader (XLA:CPU fuses cheap producers into each)."""
+
             def one(q, foot):
                 return _masked_mean(_distances(q, basis, points, space, pair, k, foot), mask, count)
 
-            return jax.vmap(one)(positions, feet)
-
-        def group_reusing(pair, positions, feet, basis, k, search):
-            """The group's fitness and feet: the search (in its own branch, so that its
-            result is stored once, not recomputed by each reader: XLA:CPU fuses cheap
-            producers into each) every ``search_every`` iterations, else the last one's.
-            A polygon's Newton step cannot leave its segment, so a polygon searches (one
-            sample per segment) every iteration, fused as without reuse."""
-            if k == 1:
-                return group_fitness(pair, positions, None, basis, k), feet
+            if k == 1 or search_every == 1:
+                return jax.vmap(lambda q: one(q, None))(positions), feet
 
             def searched():
                 return jax.vmap(lambda q: _feet(q, basis, points, space, pair, k, False))(positions)
 
             feet = jax.lax.cond(search, searched, lambda: feet)
-            return group_fitness(pair, positions, feet, basis, k), feet
+            return jax.vmap(one)(positions, feet), feet
 
-        def fitness(positions):  # (swarms, P, dim) -> (swarms, P): searching every time
-            return _by_degree(group_fitness, groups, bases, pairs, positions, None)
-
-        def reusing(positions, feet, iteration):
-            search = functools.partial(group_reusing, search=iteration % search_every == 0)
+        def fitness(positions, feet, iteration):  # (swarms, P, dim) -> (swarms, P), feet
+            search = functools.partial(group_fitness, search=iteration % search_every == 0)
             return _by_degree(search, groups, bases, pairs, positions, feet)
 
-        if search_every == 1:
-            state, info = pso.run_swarms(
-                run_keys, state, params, boxes, fitness, num_steps, tol, max_steps
-            )
-        else:
-            (state, feet), info = pso.run_swarms(
-                run_keys, state, params, boxes, reusing, num_steps, tol, max_steps, feet, first
-            )
+        (state, feet), info = pso.run_swarms(
+            run_keys, state, params, boxes, fitness, num_steps, tol, max_steps, feet, first
+        )
         return state, feet, jax.tree_util.tree_map(lambda a: a.T, info)  # (swarms, steps)
 
     per_curve = (keys, state, feet, boxes, seeds, points, mask)
@@ -993,7 +983,7 @@ def _launch(
         ``report(iteration, best)`` follows the chunks."""
         reuse = opts.search_every > 1
         feet = (
-            np.zeros((*seeds.shape[:2], opts.particles, data.shape[1]), np.int32) if reuse else None
+            np.zeros((*seeds.shape[:2], opts.particles, data.shape[1]), np.int32) if reuse else ()
         )
         state, feet, boxes, seeds, dev_data, dev_mask, dev_keys = place.curves(
             (state, feet, boxes, seeds, data, mask, keys)

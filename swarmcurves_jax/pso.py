@@ -268,17 +268,15 @@ def run_swarms(
     returns ``(states, memory), info``.
     """
     move = jax.vmap(update, in_axes=(0, 0, None, 0, 0, None, None))
-    if memory is None:
+    remembers = memory is not None
+    fn = fitness_fn if remembers else lambda positions, mem, _: (fitness_fn(positions), mem)
 
-        def body(s, _):
-            return move(keys, s, params, boxes, fitness_fn(s.position), tol, max_steps)
-
-        return jax.lax.scan(body, states, None, length=num_steps)
-
-    def remembering(carry, i):
+    def body(carry, i):
         s, mem = carry
-        fit, mem = fitness_fn(s.position, mem, first + i)
+        fit, mem = fn(s.position, mem, first + i)
         s, info = move(keys, s, params, boxes, fit, tol, max_steps)
         return (s, mem), info
 
-    return jax.lax.scan(remembering, (states, memory), jnp.arange(num_steps, dtype=jnp.int32))
+    steps = jnp.arange(num_steps, dtype=jnp.int32)
+    (states, memory), info = jax.lax.scan(body, (states, memory), steps)
+    return ((states, memory) if remembers else states), info
