@@ -23,10 +23,11 @@ What it measures, all with ``refine=False`` (the swarm alone, the workload peers
   NumPy and pyswarms run 63 iterations (64 evaluations: whole search periods) and are
   scaled linearly by evaluations to 2000 iterations, which the table says.  evosax runs the
   full 2000.  Ratios are peer time / ours (warm).
-- **Scaling** (warm seconds, min of 2, at 100 and 200 iterations, the difference scaled to
-  2000): against N (100 ... 5,000 points, every point in the fitness), particles (16 ... 512),
-  swarms (1 ... 64; degree 2-5 pairs with n <= 25 and 128 samples, so every swarm costs the
-  same) and iterations (W1 at 100 ... 2000); the cold compile time against the swarms.
+- **Scaling** (warm seconds and CPU seconds, min of 2, at 100 and 300 iterations, the
+  difference scaled to 2000): against N (100 ... 5,000 points, every point in the
+  fitness), particles (16 ... 512), swarms (1 ... 64; degree 2-5 pairs with n <= 25 and
+  128 samples, so every swarm costs the same) and iterations (W1 at 100 ... 2000); the
+  cold compile time against the swarms.
 - **Memory**: peak RSS of W1 and of a 100,000-point fit, each in a fresh process.
 - **Roofline**: the fitness's FLOPs per particle-evaluation counted from its shapes, the
   achieved FLOP/s on W1, and this CPU's float32 peak measured by a 4096² matmul.
@@ -51,6 +52,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from bench_w1 import cpu_seconds  # a sibling script: run from benchmarks/
 
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
@@ -328,32 +330,41 @@ def section_peers(args, report):
 
 def section_scaling(args, report):
     it = args.scale_iterations
-    scale = FULL_ITERATIONS / it
+    scale = FULL_ITERATIONS / (2 * it)
     pts_f4 = analytic_points("f4")
 
     def warm_time(points, **kw):
-        """(compile seconds, marginal seconds per 2000 iterations): the swarm stage timed
-        warm at ``it`` and ``2 it`` iterations, so per-call costs (seeds, bases, the host's
-        error projections) do not pollute the slope; compile = first call - warm call."""
+        """(compile seconds, marginal wall seconds and CPU seconds per 2000 iterations):
+        the swarm stage timed warm at ``it`` and ``3 it`` iterations (min of 2), so per-call
+        costs (seeds, bases, the host's error projections) cancel; compile = first call -
+        warm call.  The CPU time (every thread of this process) is the steadier figure on
+        a shared machine: time stolen by the hypervisor is not charged to it."""
         kwargs = {**W1, **kw}
-        cold = fit(points, iterations=it, **kwargs).timings["swarm"]
-        once = min(fit(points, iterations=it, **kwargs).timings["swarm"] for _ in range(2))
-        twice = min(fit(points, iterations=2 * it, **kwargs).timings["swarm"] for _ in range(2))
-        return cold - once, (twice - once) * scale
+
+        def run(n_it):
+            cpu = cpu_seconds()
+            wall = fit(points, iterations=n_it, **kwargs).timings["swarm"]
+            return wall, cpu_seconds() - cpu
+
+        cold = run(it)[0]
+        once = [run(it) for _ in range(2)]
+        thrice = [run(3 * it) for _ in range(2)]
+        wall, cpu = (min(t[i] for t in thrice) - min(t[i] for t in once) for i in (0, 1))
+        return cold - min(t[0] for t in once), wall * scale, cpu * scale
 
     out = {"iterations_used": it, "N": [], "particles": [], "swarms": [], "iterations": []}
     for n_pts in args.sizes:
         x = np.linspace(-2, 2, n_pts)
         pts = np.c_[x, 0.5 * np.sin(x) + np.exp(-30 * x**2)]
-        cold, warm = warm_time(pts, max_fitness_points=n_pts)
-        out["N"].append({"x": n_pts, "warm_s": warm, "compile_s": cold})
+        cold, warm, cpu = warm_time(pts, max_fitness_points=n_pts)
+        out["N"].append({"x": n_pts, "warm_s": warm, "cpu_s": cpu, "compile_s": cold})
     for p in args.particle_counts:
-        cold, warm = warm_time(pts_f4, particles=p)
-        out["particles"].append({"x": p, "warm_s": warm, "compile_s": cold})
+        cold, warm, cpu = warm_time(pts_f4, particles=p)
+        out["particles"].append({"x": p, "warm_s": warm, "cpu_s": cpu, "compile_s": cold})
     for s in args.swarm_counts:
         cps, degrees = _swarm_layout(s)
-        cold, warm = warm_time(pts_f4, cps=cps, degrees=degrees, num_samples=128)
-        out["swarms"].append({"x": s, "warm_s": warm, "compile_s": cold})
+        cold, warm, cpu = warm_time(pts_f4, cps=cps, degrees=degrees, num_samples=128)
+        out["swarms"].append({"x": s, "warm_s": warm, "cpu_s": cpu, "compile_s": cold})
     for n_it in args.iteration_counts:
         cold, warm, _ = timed(lambda: fit(pts_f4, **{**W1, "iterations": n_it}), 1)
         out["iterations"].append({"x": n_it, "warm_s": warm})
@@ -468,6 +479,8 @@ def figures(report, out: Path):
             xs = [r["x"] for r in sc[key]]
             ys = [r["warm_s"] for r in sc[key]]
             ax.loglog(xs, ys, "o-", label="warm")
+            if "cpu_s" in sc[key][0]:
+                ax.loglog(xs, [r["cpu_s"] for r in sc[key]], "^-", label="CPU time")
             ax.loglog(xs, [ys[0] * x / xs[0] for x in xs], ":", color="0.5", label="linear")
             if key == "swarms":
                 ax.loglog(xs, [r["compile_s"] for r in sc[key]], "s--", label="compile")
@@ -538,13 +551,17 @@ def markdown(report) -> str:
         sc = report["scaling"]
         lines += [
             "",
-            "Scaling: marginal seconds per 2000 iterations of the swarm stage (timed warm at "
-            f"{sc['iterations_used']} and {2 * sc['iterations_used']} iterations; swarms: "
-            "equal-cost swarms, 128 samples); iterations: whole warm `fit` calls:",
+            "Scaling: marginal seconds per 2000 iterations of the swarm stage, wall (CPU time "
+            f"of both cores) (timed warm at {sc['iterations_used']} and "
+            f"{3 * sc['iterations_used']} iterations, min of 2; swarms: equal-cost swarms, "
+            "128 samples); iterations: whole warm `fit` calls:",
             "",
         ]
         for key in ("N", "particles", "swarms", "iterations"):
-            cells = ", ".join(f"{r['x']}: {r['warm_s']:.2f} s" for r in sc[key])
+            cells = ", ".join(
+                f"{r['x']}: {r['warm_s']:.2f} s" + (f" ({r['cpu_s']:.1f})" if "cpu_s" in r else "")
+                for r in sc[key]
+            )
             lines.append(f"- {key}: {cells}")
         cells = ", ".join(f"{r['x']}: {r['compile_s']:.1f} s" for r in sc["swarms"])
         lines.append(

@@ -17,6 +17,7 @@ from swarmcurves_jax.fitness import (
     foot_samples,
     make_span_basis,
     nearest_sample,
+    search_blocks,
     point_distances,
 )
 from swarmcurves_jax.knots import breakpoints
@@ -34,20 +35,37 @@ def as_jax(basis):
     )
 
 
-# Sample counts around the unrolled block of 128 and its scan; each count compiles once.
-@given(st.integers(0, 1000), st.sampled_from([1, 2, 7, 48, 127, 128, 129, 255, 300]))
-def test_nearest_sample_is_argmin_of_segment_distance(seed, num):
+# Sample counts around the unrolled blocks (96 samples in 2D, 64 in 3D) and their scan,
+# whose equal blocks pad past a power of two at 511 (6 x 86); each count compiles once.
+@given(
+    st.integers(0, 1000),
+    st.sampled_from([1, 7, 64, 65, 96, 97, 511]),
+    st.sampled_from([2, 3]),
+)
+def test_nearest_sample_is_argmin_of_segment_distance(seed, num, dim):
     rng = np.random.default_rng(seed)
-    pts = rng.uniform(-1, 1, (40, 2)).astype(np.float32)
-    s = rng.uniform(-1, 1, (num, 2)).astype(np.float32)
-    tang = rng.uniform(-0.05, 0.05, (num, 2)).astype(np.float32)
+    pts = rng.uniform(-1, 1, (40, dim)).astype(np.float32)
+    s = rng.uniform(-1, 1, (num, dim)).astype(np.float32)
+    tang = rng.uniform(-0.05, 0.05, (num, dim)).astype(np.float32)
     j = np.asarray(nearest_sample(jnp.asarray(pts), jnp.asarray(s), jnp.asarray(tang)))
+    assert j.min() >= 0 and j.max() < num
     diff = pts[:, None] - s[None]
     along = np.sum(diff * tang[None], -1)
     sc = np.clip(along / np.sum(tang**2, -1)[None], -1, 1)
     d2 = np.sum((diff - sc[..., None] * tang[None]) ** 2, -1)
     # the packed search may break near-ties differently: compare distances, not indices
     np.testing.assert_allclose(d2[np.arange(len(pts)), j], d2.min(axis=1), rtol=1e-4, atol=1e-12)
+
+
+@given(st.integers(1, 4096), st.sampled_from([2, 3]))
+def test_search_blocks_are_small_equal_and_cover_the_samples(num, dim):
+    # Unrolled blocks past ~110 2D / ~80 3D samples ran 5-10x slower on XLA:CPU.
+    blocks, size = search_blocks(num, dim)
+    assert size * dim <= 192 and blocks * size >= num
+    assert blocks * size - num < blocks  # padding: under one sample per block
+    assert blocks == 1 or (blocks - 1) * size < num  # no empty block
+    assert search_blocks(128, 2) == (2, 64) and search_blocks(96, 2) == (1, 96)
+    assert search_blocks(88, 3) == (2, 44)
 
 
 @settings(max_examples=40, deadline=None)
