@@ -17,8 +17,8 @@ from swarmcurves_jax.fitness import (
     foot_samples,
     make_span_basis,
     nearest_sample,
-    search_blocks,
     point_distances,
+    search_blocks,
 )
 from swarmcurves_jax.knots import breakpoints
 from swarmcurves_jax.projection import project_points
@@ -64,8 +64,12 @@ def test_search_blocks_are_small_equal_and_cover_the_samples(num, dim):
     assert size * dim <= 192 and blocks * size >= num
     assert blocks * size - num < blocks  # padding: under one sample per block
     assert blocks == 1 or (blocks - 1) * size < num  # no empty block
-    assert search_blocks(128, 2) == (2, 64) and search_blocks(96, 2) == (1, 96)
-    assert search_blocks(88, 3) == (2, 44)
+
+
+def test_search_blocks_of_known_counts():
+    assert search_blocks(96, 2) == (1, 96) and search_blocks(97, 2) == (2, 49)
+    assert search_blocks(128, 2) == (2, 64) and search_blocks(88, 3) == (2, 44)
+    assert search_blocks(4096, 2) == (43, 96) and search_blocks(32, 3) == (1, 32)
 
 
 @settings(max_examples=40, deadline=None)
