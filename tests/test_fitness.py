@@ -111,14 +111,28 @@ def test_search_samples_lie_on_their_spans():
     np.testing.assert_allclose(basis.sample_tangent, half, atol=1e-12)
 
 
-def test_span_and_start_recover_every_sample_index():
-    basis = as_jax(make_span_basis(40, 3, True, 4095))  # 40 spans of 102 samples, 15 repeats
-    j = jnp.arange(4095, dtype=jnp.int32)
-    span, tau = _span_and_start(j, basis, jnp.float32)
-    want = np.minimum(np.arange(4095) // 102, 39)
+@pytest.mark.parametrize(
+    "n,k,closed,num",  # samples per span: 102, 4095 (one span), 1, 571, 3
+    [
+        (40, 3, True, 4095),
+        (4, 3, False, 4095),
+        (10, 1, False, 9),
+        (9, 2, False, 4000),
+        (13, 3, False, 30),
+    ],
+)
+def test_span_and_start_recover_every_sample_index(n, k, closed, num):
+    """Exact under jit too, where the span is a float floor (XLA may rewrite its division)."""
+    basis = as_jax(make_span_basis(n, k, closed, num))
+    per, spans = int(basis.per_span), int(basis.num_spans)
+    j = jnp.arange(num, dtype=jnp.int32)
+    span, tau = jax.jit(_span_and_start, static_argnums=2)(j, basis, jnp.float32)
+    want = np.minimum(np.arange(num) // per, spans - 1)
     np.testing.assert_array_equal(np.asarray(span), want)
-    within = np.arange(4095) - want * 102
-    np.testing.assert_allclose(np.asarray(tau), (np.minimum(within, 101) + 0.5) / 102, rtol=1e-6)
+    within = np.arange(num) - want * per
+    np.testing.assert_allclose(
+        np.asarray(tau), (np.minimum(within, per - 1) + 0.5) / per, rtol=1e-6
+    )
 
 
 def _random_curve(n, k, closed, seed, rational=False):
