@@ -203,6 +203,12 @@ CPU_COMPILER_OPTIONS = {
     "xla_cpu_prefer_vector_width": 512,
     "xla_cpu_experimental_ynn_fusion_type": "",
 }
+#: The swarm program's: also ``min``/``max`` (and so ``clip``) as single instructions,
+#: not NaN-propagating, which on x86 costs a compare and a blend more each (measured:
+#: W1's fitness 12 % less CPU time, its search has four per pair).  Its values are finite
+#: by construction (positions in their box, validated points, weights ``exp`` of bounded
+#: logs), and a non-finite fitness is caught by ``isfinite`` (:func:`pso.update`).
+SWARM_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {"xla_cpu_enable_fast_min_max": True}
 
 
 @functools.partial(
@@ -217,7 +223,7 @@ CPU_COMPILER_OPTIONS = {
         "mesh",
         "batch",
     ),
-    compiler_options=CPU_COMPILER_OPTIONS,
+    compiler_options=SWARM_COMPILER_OPTIONS,
 )
 def _swarm_program(
     keys,
