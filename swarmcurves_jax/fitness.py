@@ -311,17 +311,22 @@ def foot_samples(
 def _span_and_start(j: jax.Array, basis: SpanBasis, dtype):
     """Each point's span (int32) and start parameter ``tau`` from its sample index.
 
-    The span is ``floor((j + 1/2) / per)`` in floats, exact below 4096
-    (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`; checked for every ``per`` in float32):
-    XLA:CPU does not vectorise an integer division by a traced ``per``, which took a
-    quarter of W1's fitness (measured: 5.0 against 3.7 CPU ms per iteration, the same
-    curves).  No division by the (broadcast) sample count either: XLA rewrites ``x / c``
-    as ``x * (1/c)`` in some programs and not in others, and the sharded and the lone fit
-    would differ.  (An exact ``floor(sqrt(j*j + 1/4))`` used to stand before the span, to
-    keep XLA from copying the search into each use of ``j``; with the float span it only
-    cost time: 4-9 % of W1's, the same curves.)
+    ``sqrt`` first: XLA:CPU's fusion copies cheap elementwise producers into every
+    consumer, so unless an op it counts as expensive stands between them, every later use
+    of ``j`` recomputes the whole search.  ``floor(sqrt(j*j + 1/4))`` is ``j`` exactly for
+    any index below 4096 (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).  Measured at W1's
+    shapes: without it the fitness is 5x slower under JAX's default compiler options
+    (``optimization_barrier`` does not help); under ``fit``'s it would be 4-9 % faster,
+    but the fitness is public and the peers in ``benchmarks/speed.py`` run it too.
+    The span is ``floor((j + 1/2) / per)`` in floats, exact below 4096 (checked for every
+    ``per`` in float32): XLA:CPU does not vectorise an integer division by a traced
+    ``per``, which took a quarter of W1's fitness (measured: 5.0 against 3.7 CPU ms per
+    iteration, the same curves).  No division by the (broadcast) sample count either: XLA
+    rewrites ``x / c`` as ``x * (1/c)`` in some programs and not in others, and the
+    sharded and the lone fit would differ.
     """
     jf = j.astype(dtype)
+    jf = jnp.floor(jnp.sqrt(jf * jf + 0.25))
     per = basis.per_span.astype(dtype)
     inv = 1.0 / per
     span = jnp.minimum(jnp.floor((jf + 0.5) * inv), (basis.num_spans - 1).astype(dtype))
