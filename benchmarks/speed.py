@@ -347,10 +347,9 @@ def section_scaling(args, report):
             return wall, cpu_seconds() - cpu
 
         cold = run(it)[0]
-        once = [run(it) for _ in range(2)]
-        thrice = [run(3 * it) for _ in range(2)]
-        wall, cpu = (min(t[i] for t in thrice) - min(t[i] for t in once) for i in (0, 1))
-        return cold - min(t[0] for t in once), wall * scale, cpu * scale
+        once = [min(t) for t in zip(run(it), run(it))]  # (wall, cpu), each the min of 2
+        thrice = [min(t) for t in zip(run(3 * it), run(3 * it))]
+        return cold - once[0], (thrice[0] - once[0]) * scale, (thrice[1] - once[1]) * scale
 
     out = {"iterations_used": it, "N": [], "particles": [], "swarms": [], "iterations": []}
     for n_pts in args.sizes:

@@ -315,15 +315,15 @@ def _span_and_start(j: jax.Array, basis: SpanBasis, dtype):
     consumer, so unless an op it counts as expensive stands between them, every later use
     of ``j`` recomputes the whole search.  ``floor(sqrt(j*j + 1/4))`` is ``j`` exactly for
     any index below 4096 (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).  Measured at W1's
-    shapes: without it the fitness is 5x slower under JAX's default compiler options
-    (``optimization_barrier`` does not help); under ``fit``'s it would be 4-9 % faster,
-    but the fitness is public and the peers in ``benchmarks/speed.py`` run it too.
-    The span is ``floor((j + 1/2) / per)`` in floats, exact below 4096 (checked for every
-    ``per`` in float32): XLA:CPU does not vectorise an integer division by a traced
-    ``per``, which took a quarter of W1's fitness (measured: 5.0 against 3.7 CPU ms per
-    iteration, the same curves).  No division by the (broadcast) sample count either: XLA
-    rewrites ``x / c`` as ``x * (1/c)`` in some programs and not in others, and the
-    sharded and the lone fit would differ.
+    shapes: without it the fitness runs 5x slower under JAX's default compiler options
+    (``optimization_barrier`` does not help), 4-9 % faster under ``fit``'s; the fitness is
+    public, so it stays.
+
+    The span is ``floor((j + 1/2) * (1/per))`` in floats, exact below 4096 (checked for
+    every ``per`` in float32): XLA:CPU does not vectorise an integer division by a traced
+    ``per`` (it took a quarter of W1's fitness: 5.0 against 3.7 CPU ms per iteration).
+    Times the reciprocal, not ``/ per``: XLA rewrites ``x / c`` as ``x * (1/c)`` in some
+    programs and not in others, and the sharded and the lone fit would differ.
     """
     jf = j.astype(dtype)
     jf = jnp.floor(jnp.sqrt(jf * jf + 0.25))
