@@ -45,6 +45,18 @@ __all__ = [
     "NEWTON_STEPS",
 ]
 
+#: The precision of every matrix product here: float32 on every backend.  XLA:GPU's
+#: default for a float32 product is TF32 (a 10-bit mantissa), which moved the curve by
+#: about 1e-3 of its size, so that the fitness undercut the true distance (measured on an
+#: H100: ``tests/test_fitness.py`` failed, W1's cubic ended 2.7x worse); XLA:CPU ignores it.
+PRECISION = jax.lax.Precision.HIGHEST
+
+
+def float32_matmul(a, b, xp=jnp):
+    """``a @ b``, in float32 (:data:`PRECISION`) where ``xp`` is ``jax.numpy``."""
+    return a @ b if xp is np else jnp.matmul(a, b, precision=PRECISION)
+
+
 #: Newton steps from the searched sample: measured on W1's least-squares curves, three
 #: bring the mean distance within 1e-5 (relative, median) of the true projection.
 NEWTON_STEPS = 3
@@ -123,8 +135,8 @@ def _span_basis(power, widths, num_spans, k: int, closed: bool, num_samples: int
         lo=lo,
         hi=hi,
         degree=(p[0] == k).astype(power.dtype),
-        sample_value=value.reshape(num_samples, -1) @ flat,
-        sample_tangent=slope.reshape(num_samples, -1) @ flat,
+        sample_value=float32_matmul(value.reshape(num_samples, -1), flat, xp),
+        sample_tangent=float32_matmul(slope.reshape(num_samples, -1), flat, xp),
         per_span=xp.asarray(per, dtype=xp.int32),
         num_spans=xp.asarray(num_spans, dtype=xp.int32),
     )
@@ -186,7 +198,7 @@ def free_knot_basis(
         b = basis_functions(start, t, k, nu, own + k, jnp)
         if closed:  # basis function c drives control point c mod n
             cols = jnp.arange(b.shape[1]) % num_spans
-            b = b @ (cols[:, None] == jnp.arange(n_pad)[None, :]).astype(b.dtype)
+            b = float32_matmul(b, (cols[:, None] == jnp.arange(n_pad)[None, :]).astype(b.dtype))
         rows.append(b[:, :n_pad] * (widths[own] ** nu / math.factorial(nu))[:, None])
     safe = jnp.where(jnp.arange(size) < num_spans, widths, 1.0)
     return _span_basis(jnp.stack(rows, axis=1), safe, num_spans, k, closed, num_samples, jnp)
@@ -202,9 +214,9 @@ def _homogeneous(ctrl: jax.Array, weights: jax.Array | None) -> jax.Array:
 def curve_samples(ctrl: jax.Array, weights: jax.Array | None, basis: SpanBasis):
     """The search samples (M, D) and their tangent segments' half vectors (M, D)."""
     if weights is None:
-        return basis.sample_value @ ctrl, basis.sample_tangent @ ctrl
+        return float32_matmul(basis.sample_value, ctrl), float32_matmul(basis.sample_tangent, ctrl)
     hom = _homogeneous(ctrl, weights)
-    a, da = basis.sample_value @ hom, basis.sample_tangent @ hom
+    a, da = float32_matmul(basis.sample_value, hom), float32_matmul(basis.sample_tangent, hom)
     value = a[:, :-1] / a[:, -1:]
     return value, (da[:, :-1] - value * da[:, -1:]) / a[:, -1:]
 
@@ -370,7 +382,7 @@ def point_distances(
     hom = _homogeneous(ctrl, weights)
     j = nearest_sample(points, *curve_samples(ctrl, weights, basis)) if foot is None else foot
     span, tau = _span_and_start(j, basis, points.dtype)
-    coef = jnp.einsum("srn,nc->src", basis.table, hom)  # (S, K + 3, columns)
+    coef = jnp.einsum("srn,nc->src", basis.table, hom, precision=PRECISION)  # (S, K+3, cols)
     num_spans, rows, cols = coef.shape
     # Each point's span rows by a chain of selects (no gather): (rows, cols) arrays (N,).
     sel = [[jnp.broadcast_to(coef[0, r, c], tau.shape) for c in range(cols)] for r in range(rows)]

@@ -26,6 +26,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from .fitness import float32_matmul
+
 __all__ = ["METHODS", "Problem", "levenberg_marquardt", "lbfgs"]
 
 METHODS = ("lm", "lbfgs")
@@ -100,8 +102,8 @@ def levenberg_marquardt(
         jac = jax.vmap(jvp, out_axes=1)(eye * free[None, :])  # (N, P); frozen columns are zero
         floor = jnp.maximum(1e-2 * mean(d), 1e-8)
         w = train * jnp.where(reweight, 1.0 / jnp.maximum(d, floor), 1.0)
-        a = (jac * w[:, None]).T @ jac
-        g = jac.T @ (w * d)
+        a = float32_matmul((jac * w[:, None]).T, jac)
+        g = float32_matmul(jac.T, w * d)
         a = a + mu * (jnp.diag(jnp.diag(a)) + 1e-9 * eye) + jnp.diag(1.0 - free)
         x_new = jnp.clip(x - spd_solve(a, g), lower, upper)
         aux_new = search(x_new)
@@ -134,7 +136,7 @@ def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
     idx = jnp.arange(n)
 
     def column(j, low):
-        col = a[:, j] - low @ low[j]  # columns >= j of `low` are still zero
+        col = a[:, j] - float32_matmul(low, low[j])  # columns >= j of `low` are still zero
         d = jnp.sqrt(col[j])
         below = col * (1.0 / d)  # a product: XLA may rewrite a broadcast division either way
         return low.at[:, j].set(jnp.where(idx > j, below, jnp.where(idx == j, d, 0.0)))
@@ -142,12 +144,17 @@ def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
     low = jax.lax.fori_loop(0, n, column, jnp.zeros_like(a))
     diag = jnp.diagonal(low)
     y = jax.lax.fori_loop(
-        0, n, lambda i, y: y.at[i].set((b[i] - low[i] @ y) / diag[i]), jnp.zeros_like(b)
+        0,
+        n,
+        lambda i, y: y.at[i].set((b[i] - float32_matmul(low[i], y)) / diag[i]),
+        jnp.zeros_like(b),
     )
     return jax.lax.fori_loop(
         0,
         n,
-        lambda k, x: x.at[n - 1 - k].set((y[n - 1 - k] - low[:, n - 1 - k] @ x) / diag[n - 1 - k]),
+        lambda k, x: x.at[n - 1 - k].set(
+            (y[n - 1 - k] - float32_matmul(low[:, n - 1 - k], x)) / diag[n - 1 - k]
+        ),
         jnp.zeros_like(b),
     )
 

@@ -15,6 +15,7 @@ from swarmcurves_jax.fitness import (
     SpanBasis,
     _span_and_start,
     foot_samples,
+    free_knot_basis,
     make_span_basis,
     nearest_sample,
     point_distances,
@@ -109,6 +110,28 @@ def test_search_samples_lie_on_their_spans():
     np.testing.assert_allclose(basis.sample_value, design_matrix(u[:, 0], t, 3), atol=1e-12)
     half = design_matrix(u[:, 0], t, 3, nu=1) / 16  # tangent times half the spacing
     np.testing.assert_allclose(basis.sample_tangent, half, atol=1e-12)
+
+
+def test_every_matrix_product_asks_for_float32():
+    """XLA:GPU computes a float32 product in TF32 unless told otherwise, which made the
+    fitness undercut the true distance on an H100; every product of the fitness, of its
+    gradient, of the free-knot basis and of the refinement's solver asks for HIGHEST."""
+    from swarmcurves_jax.refine import spd_solve
+
+    pts = jnp.asarray(np.random.default_rng(0).uniform(-1, 1, (50, 2)), jnp.float32)
+    ctrl, w = jnp.ones((7, 2)), jnp.ones(7)
+
+    def fitness(ctrl, w, logits):
+        basis = free_knot_basis(logits, 4, 3, False, 64, 7)
+        return jnp.mean(point_distances(ctrl, w, basis, pts, degree=3))
+
+    programs = [
+        jax.jit(jax.value_and_grad(fitness, argnums=(0, 1, 2))).lower(ctrl, w, jnp.zeros(4)),
+        jax.jit(spd_solve).lower(jnp.eye(5), jnp.ones(5)),
+    ]
+    dots = [line for p in programs for line in p.as_text().splitlines() if "dot_general" in line]
+    assert len(dots) >= 8  # the products are there, and each says HIGHEST for both operands
+    assert all("precision = [HIGHEST, HIGHEST]" in line for line in dots), dots
 
 
 @pytest.mark.parametrize(
