@@ -439,13 +439,15 @@ def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20, t=None
     ctrl = _lsq(design_matrix(chord_parameters(points, closed), t, k, closed=closed), points, ends)
     grid = np.linspace(0.0, 1.0, 2048, endpoint=not closed)
     dense = design_matrix(grid, t, k, closed=closed)
-    best, best_err = ctrl, np.inf
+    best, best_err, last = ctrl, np.inf, None
     for _ in range(rounds + 1):
         dist, j = cKDTree(dense @ ctrl).query(points)  # each point's nearest grid sample
         err = np.mean(dist)
         if err < best_err:  # a correction can also fold the parameters: keep the best
             best, best_err = ctrl, err
-        ctrl = _lsq(dense[j], points, ends)
+        if last is not None and np.array_equal(j, last):
+            break  # a fixed point: every later round would give this same curve again
+        ctrl, last = _lsq(dense[j], points, ends), j
     return best
 
 
@@ -971,6 +973,7 @@ def _launch(
     steps = min(opts.chunk_size, iterations)
     seeded = opts.init == "lsq"
     stop_reason = "iterations"
+    setup = time.perf_counter() - start  # the host's seeds, boxes and bases
 
     def report(at, best):
         if bar is not None:
@@ -1128,7 +1131,7 @@ def _launch(
     if not run["history"]:
         raise KeyboardInterrupt
     state, history, done, stopped = run["state"], run["history"], run["done"], run["stopped"]
-    timings = {}
+    timings = {"setup": setup}
     if sync:
         place.get(state.best_fitness)
         timings["swarm"] = time.perf_counter() - start
