@@ -438,7 +438,8 @@ def fitness_flops(n_pts, groups, bases, n_pad, dim, particles, every=1):
 def section_roofline(args, report):
     size = 4096
     a = jax.random.normal(jax.random.key(0), (size, size), jnp.float32)
-    mm = jax.jit(lambda x: x @ x)
+    # "highest": float32 products on a GPU too, whose default for float32 is TF32
+    mm = jax.jit(lambda x: jnp.matmul(x, x, precision="highest"))
     _, best, _ = timed(lambda: jax.block_until_ready(mm(a)), 3)  # the first call compiles
     peak = 2 * size**3 / best
     _, groups, bases = w1_problem()
@@ -635,7 +636,7 @@ def main(argv=None):
     else:
         report = {
             "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
-            f"{jax.devices()[0].platform}, JAX {jax.__version__}",
+            f"{jax.devices()[0].platform} ({jax.devices()[0].device_kind}), JAX {jax.__version__}",
             "repeats": args.repeats,
         }
     for name, run in sections.items():

@@ -65,12 +65,14 @@ class FitResult:
     wall_time : float
         Seconds spent in ``fit`` (compilation included).
     timings : dict
-        Seconds per stage: ``"swarm"`` (setup, compilation and the swarm) and, when the
+        Seconds per stage: ``"swarm"`` (setup, compilation and the swarm), ``"setup"``
+        (its first part: the host's least-squares seeds, boxes and bases) and, when the
         solutions were refined, ``"refine"`` (its compilation included); the rest of
         ``wall_time`` is the host's true-error projections.  In a batch
         (:func:`swarmcurves_jax.fit_many`) the swarm and the refinement are queued
-        together, so there is one ``"call"``: the seconds from launching the program call
-        that ran the curve (with ``batch["curves"]`` others) to its results.
+        together, so there is one ``"call"`` (besides ``"setup"``): the seconds from
+        launching the program call that ran the curve (with ``batch["curves"]`` others) to
+        its results.
     batch : dict
         For :func:`swarmcurves_jax.fit_many`: ``"call"`` (which program call ran the
         curve), ``"curves"`` (how many real curves it ran), ``"bucket"`` (its padded

@@ -64,7 +64,9 @@ def test_refinement_beats_the_pure_swarm_on_f1_at_11_control_points():
     for a, b in zip(pure.solutions, refined.solutions):
         assert b.error <= a.error  # never worse: the lower true error is kept
     assert refined[3, 11].info["refined"] is True
-    assert set(refined.timings) == {"swarm", "refine"} and set(pure.timings) == {"swarm"}
+    assert set(refined.timings) == {"setup", "swarm", "refine"}
+    assert set(pure.timings) == {"setup", "swarm"}
+    assert 0 < pure.timings["setup"] < pure.timings["swarm"] < pure.wall_time
 
 
 def test_rational_refinement_keeps_weights_inside_their_bounds():
