@@ -133,18 +133,19 @@ def main(argv=None):
             f"warm, progress: {min(with_bar):.2f} s (min of {args.repeats}): overhead "
             f"{100 * (min(with_bar) / min(warm) - 1):+.1f} %"
         )
-    fastest = stages[warm.index(min(warm))]
-    loop = fastest["swarm"] - fastest["setup"]
-    print(
-        f"  stages      : host setup (least-squares seeds, bases) {fastest['setup']:.2f} s, "
-        f"swarm program {loop:.2f} s, host projections and the rest "
-        f"{min(warm) - fastest['swarm'] - fastest.get('refine', 0.0):.2f} s"
-    )
+    fastest = stages[warm.index(min(warm))]  # FitResult.timings of the fastest warm run
+    parts = [
+        f"host setup (least-squares seeds, bases) {fastest['setup']:.2f} s",
+        f"swarm program {fastest['swarm'] - fastest['setup']:.2f} s",
+    ]
     if args.refine != "none":
-        print(
-            f"  of which    : swarm {fastest['swarm']:.2f} s, refine ({args.refine}) "
-            f"{fastest['refine']:.2f} s; cold refine {result.timings['refine']:.2f} s"
+        parts.append(
+            f"refine ({args.refine}) {fastest['refine']:.2f} s "
+            f"(cold: {result.timings['refine']:.2f} s)"
         )
+    rest = min(warm) - fastest["swarm"] - fastest.get("refine", 0.0)
+    parts.append(f"host projections and the rest {rest:.2f} s")
+    print("  stages      : " + ", ".join(parts))
     print(f"throughput    : {evals / min(warm):.3e} particle-evaluations/s")
     print(f"peak RSS      : {peak_mib:.0f} MiB (whole process)")
     print("best per degree:")

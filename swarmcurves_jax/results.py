@@ -66,7 +66,8 @@ class FitResult:
         Seconds spent in ``fit`` (compilation included).
     timings : dict
         Seconds per stage: ``"swarm"`` (setup, compilation and the swarm), ``"setup"``
-        (its first part: the host's least-squares seeds, boxes and bases) and, when the
+        (its first part, on the host: the checked points, least-squares seeds, boxes and
+        bases) and, when the
         solutions were refined, ``"refine"`` (its compilation included); the rest of
         ``wall_time`` is the host's true-error projections.  In a batch
         (:func:`swarmcurves_jax.fit_many`) the swarm and the refinement are queued
