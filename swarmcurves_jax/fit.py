@@ -841,14 +841,16 @@ def _split_swarms(groups, parts: int) -> list[np.ndarray]:
     a degree it already has, and to start a new degree there only 5 % below.
 
     A swarm's cost is its group's search samples plus 10, a rough count of the work per
-    point after the search (``benchmarks/bench_w1.py`` times the result).
+    point after the search; a polygon has none (its search is its distance:
+    :func:`~swarmcurves_jax.fitness.polyline_distances`).  ``benchmarks/bench_w1.py``
+    times the result.
     """
     count = min(parts, groups[-1][2])
     sets, load = [[] for _ in range(count)], np.zeros(count)
     cost = np.zeros(groups[-1][2])
     degree = np.zeros(groups[-1][2], int)
     for k, i, j, samples in groups:
-        cost[i:j], degree[i:j] = samples + 10, k
+        cost[i:j], degree[i:j] = samples + (10 if k > 1 else 0), k
     for k, i, j, _ in sorted(groups, key=lambda g: (-cost[g[1]] * (g[2] - g[1]), g[1])):
         d = int(np.argmin(load))
         sets[d] += range(i, j)

@@ -19,6 +19,7 @@ from swarmcurves_jax.fitness import (
     make_span_basis,
     nearest_sample,
     point_distances,
+    polyline_distances,
     search_blocks,
 )
 from swarmcurves_jax.knots import breakpoints
@@ -48,14 +49,57 @@ def test_nearest_sample_is_argmin_of_segment_distance(seed, num, dim):
     pts = rng.uniform(-1, 1, (40, dim)).astype(np.float32)
     s = rng.uniform(-1, 1, (num, dim)).astype(np.float32)
     tang = rng.uniform(-0.05, 0.05, (num, dim)).astype(np.float32)
+    tang[rng.uniform(size=num) < 0.2] = 0.0  # a sample where the curve stands still
     j = np.asarray(nearest_sample(jnp.asarray(pts), jnp.asarray(s), jnp.asarray(tang)))
     assert j.min() >= 0 and j.max() < num
     diff = pts[:, None] - s[None]
     along = np.sum(diff * tang[None], -1)
-    sc = np.clip(along / np.sum(tang**2, -1)[None], -1, 1)
+    sq = np.broadcast_to(np.sum(tang**2, -1)[None], along.shape)
+    sc = np.clip(np.divide(along, sq, out=np.zeros_like(along), where=sq > 0), -1, 1)
     d2 = np.sum((diff - sc[..., None] * tang[None]) ** 2, -1)
     # the packed search may break near-ties differently: compare distances, not indices
     np.testing.assert_allclose(d2[np.arange(len(pts)), j], d2.min(axis=1), rtol=1e-4, atol=1e-12)
+
+
+def _segment_distances(pts, a, b):
+    """Exact float64 distance from each point to each segment a[m]-b[m]: (N, M)."""
+    pts, a, b = (np.asarray(x, np.float64) for x in (pts, a, b))
+    ab = b - a
+    s = np.sum((pts[:, None] - a[None]) * ab[None], -1) / np.maximum(np.sum(ab**2, -1), 1e-300)
+    foot = a[None] + np.clip(s, 0, 1)[..., None] * ab[None]
+    return np.linalg.norm(pts[:, None] - foot, axis=-1)
+
+
+@given(st.integers(0, 1000), st.sampled_from([1, 9, 96, 97, 200]), st.sampled_from([2, 3]))
+def test_polyline_distances_are_exact(seed, num, dim):
+    # a polygon's fitness is its search: every segment at once, in blocks past 96 (2D)
+    # or 64 (3D) segments; points on, near and far from the polyline, and empty segments
+    rng = np.random.default_rng(seed)
+    verts = rng.uniform(-1, 1, (num + 1, dim))
+    verts[rng.uniform(size=num + 1) < 0.1] = verts[0]
+    a, b = verts[:-1], verts[1:]
+    s = rng.uniform(size=(60, 1))
+    m = rng.integers(0, num, 60)
+    pts = a[m] + s * (b[m] - a[m]) + rng.normal(0, 10.0 ** rng.uniform(-6, 0, (60, 1)), (60, dim))
+    pts = np.r_[pts, verts].astype(np.float32)
+    mid, half = ((a + b) / 2).astype(np.float32), ((b - a) / 2).astype(np.float32)
+    got = np.asarray(polyline_distances(jnp.asarray(pts), jnp.asarray(mid), jnp.asarray(half)))
+    exact = _segment_distances(pts, mid - half, mid + half).min(1)
+    np.testing.assert_allclose(got, exact, rtol=2e-6, atol=3e-7)
+
+
+def test_polygon_fitness_is_its_exact_distance():
+    # point_distances of a degree-1 curve (no foot given) is the polyline distance
+    rng = np.random.default_rng(3)
+    n, k = 9, 1
+    ctrl = rng.uniform(-1, 1, (n, 3))
+    pts = rng.uniform(-1, 1, (50, 3))
+    basis = as_jax(make_span_basis(n, k, False, default_num_samples([(k, n)], False)))
+    got = point_distances(
+        jnp.asarray(ctrl, jnp.float32), None, basis, jnp.asarray(pts, jnp.float32), degree=1
+    )
+    exact = _segment_distances(pts, ctrl[:-1], ctrl[1:]).min(1)
+    np.testing.assert_allclose(np.asarray(got), exact, rtol=2e-6, atol=3e-7)
 
 
 @given(st.integers(1, 4096), st.sampled_from([2, 3]))
