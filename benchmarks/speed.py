@@ -423,13 +423,19 @@ def fitness_flops(n_pts, groups, bases, n_pad, dim, particles, every=1):
         top = rows - 3
         every_k = 1 if k == 1 else every
         matmuls = 2 * n_pad * dim * (2 * samples / every_k + spans * rows)  # samples, table
-        search = n_pts * samples * (5 * dim + 7) / every_k  # diff, d2, along, clip, min
-        select = n_pts * spans * (rows * dim + 3)  # a where per row and column, lo, hi
-        jump = 0 if k == 1 else 25 + 8 * dim  # the neighbour's polynomial past either end
-        step = 6 * top * dim + jump + 10 * dim + 12  # Horner (3 orders), Newton update
-        steps = 1 if k == 1 else NEWTON_STEPS
-        newton = n_pts * (steps * step + 2 * top * dim + jump + 3 * dim + 4)
+        # diff, along, clip, offset to the foot, its square, tag (not a polygon's), min
+        search = n_pts * samples * (7 * dim + (1 if k == 1 else 3)) / every_k
         update = 12 * n_pad * dim  # the PSO update
+        if k == 1:  # a polygon's search is its distance (fitness.polyline_distances)
+            samples_only = 4 * n_pad * dim * samples  # no span table: no Newton
+            total += (j - i) * particles * (samples_only + search + n_pts + update)
+            swarms += j - i
+            continue
+        select = n_pts * spans * (rows * dim + 3)  # a where per row and column, lo, hi
+        jump = 25 + 8 * dim  # the neighbour's polynomial past either end
+        step = 6 * top * dim + jump + 10 * dim + 12  # Horner (3 orders), Newton update
+        # the first step starts inside its span: no jump terms
+        newton = n_pts * (NEWTON_STEPS * step - jump + 2 * top * dim + jump + 3 * dim + 4)
         total += (j - i) * particles * (matmuls + search + select + newton + update)
         swarms += j - i
     return total / (swarms * particles), total
