@@ -422,21 +422,21 @@ def fitness_flops(n_pts, groups, bases, n_pad, dim, particles, every=1):
         spans, rows = basis.table.shape[1], basis.table.shape[2]
         top = rows - 3
         every_k = 1 if k == 1 else every
-        matmuls = 2 * n_pad * dim * (2 * samples / every_k + spans * rows)  # samples, table
+        table = 0 if k == 1 else spans * rows  # a polygon's fitness needs no span table
+        matmuls = 2 * n_pad * dim * (2 * samples / every_k + table)  # samples, table
         # diff, along, clip, offset to the foot, its square, tag (not a polygon's), min
         search = n_pts * samples * (7 * dim + (1 if k == 1 else 3)) / every_k
         update = 12 * n_pad * dim  # the PSO update
         if k == 1:  # a polygon's search is its distance (fitness.polyline_distances)
-            samples_only = 4 * n_pad * dim * samples  # no span table: no Newton
-            total += (j - i) * particles * (samples_only + search + n_pts + update)
-            swarms += j - i
-            continue
-        select = n_pts * spans * (rows * dim + 3)  # a where per row and column, lo, hi
-        jump = 25 + 8 * dim  # the neighbour's polynomial past either end
-        step = 6 * top * dim + jump + 10 * dim + 12  # Horner (3 orders), Newton update
-        # the first step starts inside its span: no jump terms
-        newton = n_pts * (NEWTON_STEPS * step - jump + 2 * top * dim + jump + 3 * dim + 4)
-        total += (j - i) * particles * (matmuls + search + select + newton + update)
+            rest = n_pts  # a sqrt; no Newton
+        else:
+            select = n_pts * spans * (rows * dim + 3)  # a where per row and column, lo, hi
+            jump = 25 + 8 * dim  # the neighbour's polynomial past either end
+            step = 6 * top * dim + jump + 10 * dim + 12  # Horner (3 orders), Newton update
+            final = 2 * top * dim + jump + 3 * dim + 4  # the foot point and the distance
+            # the first step starts inside its span: no jump terms
+            rest = select + n_pts * (NEWTON_STEPS * step - jump + final)
+        total += (j - i) * particles * (matmuls + search + rest + update)
         swarms += j - i
     return total / (swarms * particles), total
 

@@ -288,8 +288,9 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
         first, block, u, h = blk
         for m in range(block.shape[0]):
             d2 = _segment_d2(points, block[m], u[m], h[m])
-            if bits:
-                d2 = (jax.lax.bitcast_convert_type(d2, jnp.int32) & ~low) | (first + m)
+            if bits:  # in float32, whatever the points' precision: the tag is int32
+                d2 = jax.lax.bitcast_convert_type(d2.astype(jnp.float32), jnp.int32)
+                d2 = (d2 & ~low) | (first + m)
             acc = d2 if acc is None else jnp.minimum(acc, d2)
         return acc
 
@@ -303,8 +304,10 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
         for a in (samples, unit, half)
     ]
     firsts = jnp.arange(num_blocks, dtype=jnp.int32) * size
-    init = jnp.full(points.shape[:1], jnp.iinfo(jnp.int32).max if bits else jnp.inf)
-    init = init.astype(jnp.int32 if bits else jnp.float32)
+    if bits:
+        init = jnp.full(points.shape[:1], jnp.iinfo(jnp.int32).max, jnp.int32)
+    else:
+        init = jnp.full(points.shape[:1], jnp.inf, points.dtype)
     best, _ = jax.lax.scan(lambda a, b: (block_min(a, b), None), init, (firsts, *blocks))
     return best
 
@@ -316,7 +319,7 @@ def _segment_d2(points: jax.Array, sample: jax.Array, unit: jax.Array, half: jax
     dim = points.shape[1]
     diff = [points[:, i] - sample[i] for i in range(dim)]
     along = jnp.clip(sum(diff[i] * unit[i] for i in range(dim)), -half, half)
-    return sum(jnp.square(diff[i] - along * unit[i]) for i in range(dim)).astype(jnp.float32)
+    return sum(jnp.square(diff[i] - along * unit[i]) for i in range(dim))
 
 
 def _unit_tangents(tangents: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -331,7 +334,9 @@ def _unit_tangents(tangents: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 def nearest_sample_dense(points: jax.Array, samples: jax.Array, tangents: jax.Array) -> jax.Array:
     """:func:`nearest_sample` as a plain (N, M) ``argmin``: slower to run on XLA:CPU but
-    about ten times quicker to compile, for code that searches only a few dozen times."""
+    about ten times quicker to compile, for code that searches only a few dozen times.
+    Its own broadcast formula: :func:`_segment_d2` vmapped over the samples ranked the
+    same but made W1's refinement 2.5x slower (0.54 against 0.22 s, measured)."""
     diff = points[:, None, :] - samples[None, :, :]
     along = jnp.sum(diff * tangents[None], axis=2)
     len2 = jnp.sum(tangents**2, axis=1)[None, :]

@@ -89,6 +89,19 @@ def test_polyline_distances_are_exact(seed, num, dim):
     np.testing.assert_allclose(got, exact, rtol=2e-6, atol=5e-7)  # float32 offsets
 
 
+def test_polyline_distances_keep_float64():
+    # with x64 on (fit's dtype=float64) the distance is not rounded through float32
+    rng = np.random.default_rng(4)
+    verts, pts = rng.uniform(-1, 1, (8, 2)), rng.uniform(-1, 1, (30, 2))
+    pts[0] = verts[2] + 1e-9 * np.array([verts[3, 1] - verts[2, 1], verts[2, 0] - verts[3, 0]])
+    mid, half = (verts[:-1] + verts[1:]) / 2, (verts[1:] - verts[:-1]) / 2
+    with jax.enable_x64(True):
+        got = np.asarray(polyline_distances(*(jnp.asarray(x) for x in (pts, mid, half))))
+    assert got.dtype == np.float64
+    exact = _segment_distances(pts, mid - half, mid + half).min(1)
+    np.testing.assert_allclose(got, exact, rtol=1e-12, atol=1e-14)
+
+
 def test_polygon_fitness_is_its_exact_distance():
     # point_distances of a degree-1 curve (no foot given) is the polyline distance
     rng = np.random.default_rng(3)
