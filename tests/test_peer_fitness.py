@@ -1,0 +1,54 @@
+"""The speed benchmark's peers (``benchmarks/speed.py``) optimise exactly ``fit``'s fitness:
+its NumPy port (the NumPy and pyswarms peers) and the same code run in ``jax.numpy``
+(evosax's plain-JAX peer) agree with :func:`swarmcurves_jax.fitness.point_distances` on
+W1's swarms, so that the peers' times compare like with like."""
+
+import importlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from swarmcurves_jax.fit import least_squares_ctrl
+from swarmcurves_jax.fitness import point_distances
+
+
+@pytest.fixture(scope="module")
+def speed():
+    from pathlib import Path
+
+    with pytest.MonkeyPatch.context() as mp:  # the benchmarks import their siblings
+        mp.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks"))
+        yield importlib.import_module("speed")
+
+
+def _particles(points, k, n, rng, count=16):
+    """Positions near the least-squares curve (as the swarm's are) and anywhere in the
+    box (as its first ones are), padded to W1's 10 control points."""
+    seed = np.zeros((10, 2))
+    seed[:n] = least_squares_ctrl(points.astype(np.float64), n, k, False)
+    near = seed[None] + rng.normal(0, 0.02, (count, 10, 2))
+    wild = rng.uniform(-1, 1, (count, 10, 2))
+    return np.concatenate([near, wild]).reshape(2 * count, 20).astype(np.float32)
+
+
+@pytest.mark.parametrize("swarm", [0, 3, 6])  # n = 4, 7, 10 of each degree
+def test_peers_compute_fits_fitness(speed, swarm):
+    points, groups, bases = speed.w1_problem()
+    rng = np.random.default_rng(swarm)
+    for (k, i, _, _), basis in zip(groups, bases):
+        n = speed.W1_PAIRS[i + swarm][1]
+        one = jax.tree_util.tree_map(lambda a: np.asarray(a)[swarm], basis)
+        q = _particles(points, k, n, rng)
+        ours = jax.vmap(
+            lambda x, b=jax.tree_util.tree_map(jnp.asarray, one), k=k: jnp.mean(
+                point_distances(x.reshape(10, 2), None, b, jnp.asarray(points), None, k)
+            )
+        )(jnp.asarray(q))
+        in_numpy, _ = speed.numpy_fitness(q[:, : 2 * n], one, points, k)
+        in_jax, _ = jax.jit(
+            lambda x, b, k=k: speed.numpy_fitness(x, b, jnp.asarray(points), k, xp=jnp)
+        )(jnp.asarray(q), jax.tree_util.tree_map(jnp.asarray, one))
+        np.testing.assert_allclose(in_numpy, ours, rtol=1e-4, err_msg=f"NumPy, degree {k}")
+        np.testing.assert_allclose(in_jax, ours, rtol=1e-4, err_msg=f"jax.numpy, degree {k}")
