@@ -49,7 +49,6 @@ import functools
 import json
 import math
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -58,7 +57,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from bench_w1 import cpu_seconds  # a sibling script: run from benchmarks/
+from bench_w1 import cpu_model, cpu_seconds  # a sibling script: run from benchmarks/
 
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
@@ -340,7 +339,8 @@ def section_peers(args, report):
         try:
             program = evosax_program(groups, it, args.search_every, plain=plain)
             cold, warm, best = timed(
-                lambda: jax.block_until_ready(program(keys, device_bases, data)), args.repeats
+                lambda run=program: jax.block_until_ready(run(keys, device_bases, data)),
+                args.repeats,
             )
             rows[name] = warm * (it_full + 1) / (it + 1), it
             report.setdefault("evosax", {})[name] = {
@@ -672,7 +672,7 @@ def main(argv=None):
         report = json.loads(previous.read_text())
     else:
         report = {
-            "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
+            "machine": f"{cpu_model()}, {os.cpu_count()} cores, "
             f"{jax.devices()[0].platform} ({jax.devices()[0].device_kind}), JAX {jax.__version__}",
             "repeats": args.repeats,
         }

@@ -37,18 +37,21 @@ def _particles(points, k, n, rng, count=16):
 def test_peers_compute_fits_fitness(speed, swarm):
     points, groups, bases = speed.w1_problem()
     rng = np.random.default_rng(swarm)
+    data = jnp.asarray(points)
     for (k, i, _, _), basis in zip(groups, bases):
         n = speed.W1_PAIRS[i + swarm][1]
         one = jax.tree_util.tree_map(lambda a: np.asarray(a)[swarm], basis)
+        on_device = jax.tree_util.tree_map(jnp.asarray, one)
         q = _particles(points, k, n, rng)
-        ours = jax.vmap(
-            lambda x, b=jax.tree_util.tree_map(jnp.asarray, one), k=k: jnp.mean(
-                point_distances(x.reshape(10, 2), None, b, jnp.asarray(points), None, k)
-            )
-        )(jnp.asarray(q))
+
+        def kernel(x, k=k, b=on_device):
+            return jnp.mean(point_distances(x.reshape(10, 2), None, b, data, None, k))
+
+        def in_jax_numpy(x, b, k=k):
+            return speed.numpy_fitness(x, b, data, k, xp=jnp)[0]
+
+        ours = jax.vmap(kernel)(jnp.asarray(q))
         in_numpy, _ = speed.numpy_fitness(q[:, : 2 * n], one, points, k)
-        in_jax, _ = jax.jit(
-            lambda x, b, k=k: speed.numpy_fitness(x, b, jnp.asarray(points), k, xp=jnp)
-        )(jnp.asarray(q), jax.tree_util.tree_map(jnp.asarray, one))
+        in_jax = jax.jit(in_jax_numpy)(jnp.asarray(q), on_device)
         np.testing.assert_allclose(in_numpy, ours, rtol=1e-4, err_msg=f"NumPy, degree {k}")
         np.testing.assert_allclose(in_jax, ours, rtol=1e-4, err_msg=f"jax.numpy, degree {k}")
