@@ -4,6 +4,7 @@ its NumPy port (the NumPy and pyswarms peers) and the same code run in ``jax.num
 W1's swarms, so that the peers' times compare like with like."""
 
 import importlib
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -16,8 +17,6 @@ from swarmcurves_jax.fitness import point_distances
 
 @pytest.fixture(scope="module")
 def speed():
-    from pathlib import Path
-
     with pytest.MonkeyPatch.context() as mp:  # the benchmarks import their siblings
         mp.syspath_prepend(str(Path(__file__).resolve().parents[1] / "benchmarks"))
         yield importlib.import_module("speed")
