@@ -45,7 +45,6 @@ as nan.  Writes report.md (also printed), report.json and scaling.png / roofline
 from __future__ import annotations
 
 import argparse
-import functools
 import json
 import math
 import os
@@ -224,8 +223,10 @@ def evosax_program(groups, iterations, every=1, particles=64, plain=False):
         def distance(q, foot):
             return jnp.mean(point_distances(q.reshape(10, 2), None, basis, points, foot, k))
 
-        def kernel(pop, feet):
-            """Our fitness, searching first (the result stored) where ``feet`` is None."""
+        def evaluate(pop, feet):
+            """(fitness (P,), feet), searching first where ``feet`` is None."""
+            if plain:
+                return numpy_fitness(pop, basis, points, k, feet, xp=jnp)
             if feet is None:
                 feet = jax.vmap(
                     lambda q: foot_samples(q.reshape(10, 2), None, basis, points, dense=False)
@@ -233,13 +234,12 @@ def evosax_program(groups, iterations, every=1, particles=64, plain=False):
             return jax.vmap(distance)(pop, feet), feet
 
         def fitness(pop, feet, evaluation):
-            if plain:
-                run = functools.partial(numpy_fitness, pop, basis, points, k, xp=jnp)
-            else:
-                run = functools.partial(kernel, pop)
             if every == 1 or k == 1:  # a search at every evaluation (ours fused, as fit's)
-                return run(None) if plain else (jax.vmap(distance)(pop, None), feet)
-            return jax.lax.cond(searches(evaluation, k, every), lambda f: run(None), run, feet)
+                return (evaluate(pop, None)[0] if plain else jax.vmap(distance)(pop, None)), feet
+            search = searches(evaluation, k, every)
+            return jax.lax.cond(
+                search, lambda f: evaluate(pop, None), lambda f: evaluate(pop, f), feet
+            )
 
         k0, k1, k2 = jax.random.split(key, 3)
         pop = jax.random.uniform(k0, (particles, dim), jnp.float32, -1.0, 1.0)
@@ -345,6 +345,7 @@ def section_peers(args, report):
             rows[name] = warm * (it_full + 1) / (it + 1), it
             report.setdefault("evosax", {})[name] = {
                 "cold_s": cold,
+                "iterations": it,
                 "best_cubic_fitness": float(np.min(np.asarray(best)[14:])),
             }
         except ImportError:

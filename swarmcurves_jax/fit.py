@@ -986,13 +986,17 @@ def _launch(
 
     watch = callback is not None or bar is not None
 
-    def swarm(run, state, boxes, seeds, pair_ids, bases, groups, place, report, stop, tracing=None):
+    # A split's parts trace their programs one at a time: tracing is Python, so two threads
+    # tracing at once share one core and both start compiling late, while a part that has
+    # traced compiles (outside Python's lock) as the next one traces.
+    tracing = threading.Lock()
+
+    def swarm(run, state, boxes, seeds, pair_ids, bases, groups, place, report, stop):
         """The swarm loop of these swarms on ``place``, until done or ``stop`` is set.  It
         keeps in ``run`` the state, the per-chunk histories, the iterations done and, per
         curve, the iteration after which it reached tol (-1: not yet): a Ctrl-C leaves the
         last whole chunk's there, and its placed inputs for the refinement.
-        ``report(iteration, best)`` follows the chunks.  ``tracing``: a lock that the
-        program's first trace holds (see ``part``)."""
+        ``report(iteration, best)`` follows the chunks."""
         reuse = opts.search_every > 1
         feet = (
             np.zeros((*seeds.shape[:2], opts.particles, data.shape[1]), np.int32) if reuse else ()
@@ -1027,9 +1031,9 @@ def _launch(
                 mesh=place.mesh,
                 batch=place.batch,
             )
-            if tracing is not None and not run["history"]:
-                with tracing:  # the first call's trace and lowering are cached for it
-                    _swarm_program.trace(*call.args, **call.keywords).lower()
+            if not run["history"]:
+                with tracing:  # the first call's trace and lowering, cached for it
+                    call.func.trace(*call.args, **call.keywords).lower()
             state, feet, info = call()
             run["state"] = state
             run["history"].append(info.best_fitness)
@@ -1054,10 +1058,6 @@ def _launch(
     parts = [] if not split or place.mesh is not None else _split_swarms(groups, len(split))
     order = np.argsort(np.concatenate(parts)) if parts else None
     events, stop = queue.Queue(), threading.Event()
-    # The parts trace their programs one at a time: tracing is Python, so two threads
-    # tracing at once share one core and both start compiling late, while a part that has
-    # traced compiles (outside Python's lock) as the next one traces.
-    tracing = threading.Lock()
 
     def part(i):
         """:func:`swarm` of the swarms ``parts[i]`` on ``split[i]``, back on the host; its
@@ -1079,7 +1079,6 @@ def _launch(
                 Placement(device=split[i]),
                 lambda at, best: events.put((i, at, best)),
                 stop,
-                tracing,
             )
         finally:
             events.put((i, None, None))  # this part is done (or failed)
