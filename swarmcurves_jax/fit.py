@@ -227,6 +227,7 @@ SWARM_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {"xla_cpu_enable_fast_min_max": 
 )
 def _swarm_program(
     keys,
+    draws,
     state,
     feet,
     first,
@@ -246,31 +247,27 @@ def _swarm_program(
     batch=1,
 ):
     """Run ``num_steps`` PSO steps of every swarm of every curve; swarms whose ``step`` is 0
-    start fresh.  Per curve (leading axis): ``keys`` (key data), ``state``, ``feet`` (the
+    start fresh.  Per curve (leading axis): ``keys`` and ``draws``, each swarm's run key
+    data and initial draws (:func:`_initial_draws`), ``state``, ``feet`` (the
     last search's samples, (swarms, P, N) int32; ``()`` when ``search_every`` is 1),
     ``boxes``, ``seeds``, ``points`` (padded to a bucket length) and ``mask`` (1 on real
     points); ``shared``: ``(pairs, params, bases, tol, max_steps)``; ``first``: the
     iteration this chunk starts at (the searches fall on multiples of ``search_every``).
-
-    A swarm's key is its curve's key folded with its degree and count, so its random
-    stream depends neither on the other swarms nor on the other curves of the call.
     """
 
-    def one_curve(shared, key_data, state, feet, boxes, seeds, points, mask):
+    def one_curve(shared, key_data, draws, state, feet, boxes, seeds, points, mask):
         (pairs, params, bases, tol, max_steps), first = shared
-        root_key = jax.random.wrap_key_data(key_data)
         count = jnp.sum(mask)
 
-        def start(pair, state, box, seed):
-            """The swarm's run key, and its state (fresh where it has not started)."""
-            key = jax.random.fold_in(jax.random.fold_in(root_key, pair[0]), pair[1])
-            init_key, run_key = jax.random.split(key)
-            fresh = pso.init(init_key, box, num_particles, seed)
-            return run_key, jax.tree_util.tree_map(
+        def start(draw, state, box, seed):
+            """The swarm's state, fresh where it has not started."""
+            fresh = pso.init_from_uniforms(draw, box, seed)
+            return jax.tree_util.tree_map(
                 lambda a, b: jnp.where(state.step == 0, a, b), fresh, state
             )
 
-        run_keys, state = jax.vmap(start)(pairs, state, boxes, seeds if seeded else None)
+        state = jax.vmap(start)(draws, state, boxes, seeds if seeded else None)
+        run_keys = jax.random.wrap_key_data(key_data)
 
         def group_fitness(pair, positions, feet, basis, k, search):
             """The group's fitness (P,) and feet.  The search runs inside each evaluation
@@ -300,8 +297,36 @@ def _swarm_program(
         )
         return state, feet, jax.tree_util.tree_map(lambda a: a.T, info)  # (swarms, steps)
 
-    per_curve = (keys, state, feet, boxes, seeds, points, mask)
+    per_curve = (keys, draws, state, feet, boxes, seeds, points, mask)
     return _over_curves(one_curve, per_curve, (shared, first), mesh, batch)
+
+
+@functools.partial(
+    jax.jit,
+    static_argnames=("num_particles", "size", "dtype"),
+    compiler_options={"xla_backend_optimization_level": 1},
+)
+def _initial_draws(key_data, pairs, *, num_particles, size, dtype):
+    """Every swarm's run key data and its initial positions' U[0, 1) draws, per curve:
+    (curves, swarms, 2) uint32 and (curves, swarms, num_particles, size).
+
+    A swarm's key is its curve's key folded with its degree and count, so its random
+    stream depends neither on the other swarms nor on the other curves of the call.
+    A program of its own, run while the swarm programs trace: threefry compiled into each
+    swarm program took about 1 s of its compilation on XLA:CPU, for work done once per
+    call.  Integer hashing and exact conversions, so LLVM's level 1 gives the same bits
+    and compiles in 0.33 s against 0.78 s, running as fast (measured at W1's shapes).
+    """
+
+    def one(key_data, pair):
+        key = jax.random.fold_in(
+            jax.random.fold_in(jax.random.wrap_key_data(key_data), pair[0]), pair[1]
+        )
+        init_key, run_key = jax.random.split(key)
+        u = jax.random.uniform(init_key, (num_particles, size), dtype=dtype)
+        return jax.random.key_data(run_key), u
+
+    return jax.vmap(jax.vmap(one, (None, 0)), (0, None))(key_data, pairs)
 
 
 #: Starts refined per swarm: its best, its least-squares seed, its next best particles.
@@ -943,6 +968,18 @@ def _launch(
         jnp.dtype(dtype).itemsize,
     )
     stack = lambda field: np.stack([getattr(p, field) for p in padded])  # noqa: E731
+    keys, pair_ids = stack("key_data"), np.array(pairs, np.int32)
+    # The initial draws compile and run in a thread while the host sets up and the swarm
+    # programs trace (XLA compiles outside Python's lock).
+    pool = ThreadPoolExecutor(1)
+    draws = pool.submit(
+        lambda: jax.device_get(
+            _initial_draws(
+                keys, pair_ids, num_particles=opts.particles, size=space.size, dtype=dtype
+            )
+        )
+    )
+    pool.shutdown(wait=False)
     built = {}  # the padding repeats the first curve: build its seeds once
     for p in padded:
         if id(p) not in built:
@@ -953,7 +990,7 @@ def _launch(
     boxes = pso.Box(*(np.stack(parts) for parts in zip(*(built[id(p)][0] for p in padded))))
     seeds = np.stack([built[id(p)][1] for p in padded])
     state = _empty_state(len(padded), len(pairs), opts.particles, space.size, dtype)
-    data, mask, keys = stack("data"), stack("mask"), stack("key_data")
+    data, mask = stack("data"), stack("mask")
     bases = tuple(
         stack_bases(pairs[i:j], space.closed, samples, space.n_pad, dtype)
         for _, i, j, samples in groups
@@ -969,7 +1006,6 @@ def _launch(
         for _, i, j, samples in groups
     )
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
-    pair_ids = np.array(pairs, np.int32)
     tol_arr = np.asarray(-1.0 if tol is None else tol, dtype)
     max_steps = np.asarray(iterations, np.int32)
     steps = min(opts.chunk_size, iterations)
@@ -991,18 +1027,26 @@ def _launch(
     # traced compiles (outside Python's lock) as the next one traces.
     tracing = threading.Lock()
 
-    def swarm(run, state, boxes, seeds, pair_ids, bases, groups, place, report, stop):
+    def swarm(run, drawn, state, boxes, seeds, pair_ids, bases, groups, place, report, stop):
         """The swarm loop of these swarms on ``place``, until done or ``stop`` is set.  It
         keeps in ``run`` the state, the per-chunk histories, the iterations done and, per
         curve, the iteration after which it reached tol (-1: not yet): a Ctrl-C leaves the
         last whole chunk's there, and its placed inputs for the refinement.
+        ``drawn()``: these swarms' :func:`_initial_draws`, waited for only after the trace.
         ``report(iteration, best)`` follows the chunks."""
         reuse = opts.search_every > 1
         feet = (
             np.zeros((*seeds.shape[:2], opts.particles, data.shape[1]), np.int32) if reuse else ()
         )
-        state, feet, boxes, seeds, dev_data, dev_mask, dev_keys = place.curves(
-            (state, feet, boxes, seeds, data, mask, keys)
+        state, feet, boxes, seeds, dev_data, dev_mask = place.curves(
+            (state, feet, boxes, seeds, data, mask)
+        )
+        # Zeros in the draws' place (shape, type, device) trace the program as they would.
+        dev_draws = place.curves(
+            (
+                np.zeros((*seeds.shape[:2], keys.shape[1]), np.uint32),
+                np.zeros((*seeds.shape[:2], opts.particles, space.size), dtype),
+            )
         )
         shared = place.shared((pair_ids, params, bases, tol_arr, max_steps))
         run.update(state=state, history=[], done=0, stopped=np.full(num, -1))
@@ -1013,7 +1057,7 @@ def _launch(
         while run["done"] < iterations and not (stop.is_set() and run["history"]):
             call = functools.partial(
                 _swarm_program,
-                dev_keys,
+                *dev_draws,
                 state,
                 feet,
                 np.int32(run["done"]),
@@ -1034,6 +1078,10 @@ def _launch(
             if not run["history"]:
                 with tracing:  # the first call's trace and lowering, cached for it
                     call.func.trace(*call.args, **call.keywords).lower()
+                dev_draws = place.curves(drawn())
+                call = functools.partial(
+                    _swarm_program, *dev_draws, *call.args[2:], **call.keywords
+                )
             state, feet, info = call()
             run["state"] = state
             run["history"].append(info.best_fitness)
@@ -1070,6 +1118,7 @@ def _launch(
         try:
             swarm(
                 run,
+                lambda: pick(draws.result()),
                 pick(state),
                 pick(boxes),
                 seeds[:, chosen],
@@ -1133,7 +1182,9 @@ def _launch(
             if interrupted:
                 raise KeyboardInterrupt
         else:
-            swarm(run, state, boxes, seeds, pair_ids, bases, groups, place, report, stop)
+            swarm(
+                run, draws.result, state, boxes, seeds, pair_ids, bases, groups, place, report, stop
+            )
         if tol is not None and np.all(run["stopped"] >= 0):
             stop_reason = "tol"
     except KeyboardInterrupt:

@@ -31,6 +31,7 @@ __all__ = [
     "Box",
     "default_params",
     "init",
+    "init_from_uniforms",
     "step",
     "run",
     "run_swarms",
@@ -104,17 +105,21 @@ def init(
 
     ``seed_position`` (dim,), if given, replaces particle 0 (e.g. a least-squares guess).
     """
-    pos = _uniform_positions(key, box, num_particles)
+    u = jax.random.uniform(key, (num_particles, box.mask.shape[0]), dtype=box.lower.dtype)
+    return init_from_uniforms(u, box, seed_position)
+
+
+def init_from_uniforms(u: jax.Array, box: Box, seed_position: jax.Array | None = None) -> PSOState:
+    """:func:`init` from its U[0, 1) draws ``u`` (P, dim), made elsewhere: ``fit`` draws
+    them in a small program of their own, since threefry compiled into each swarm program
+    cost it about 1 s of compilation (measured on XLA:CPU)."""
+    pos = _scale_to_init_box(u, box)
+    num_particles = u.shape[0]
     if seed_position is not None:
         pos = pos.at[0].set(jnp.clip(seed_position, box.lower, box.upper) * box.mask)
     inf = jnp.full((num_particles,), jnp.inf, dtype=pos.dtype)
     zero = jnp.zeros((), jnp.int32)
     return PSOState(pos, jnp.zeros_like(pos), pos, inf, pos[0], inf[0], pos[0], inf[0], zero, zero)
-
-
-def _uniform_positions(key, box: Box, num_particles: int) -> jax.Array:
-    u = jax.random.uniform(key, (num_particles, box.mask.shape[0]), dtype=box.lower.dtype)
-    return _scale_to_init_box(u, box)
 
 
 def _scale_to_init_box(u: jax.Array, box: Box) -> jax.Array:

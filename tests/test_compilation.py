@@ -47,3 +47,24 @@ def test_mixed_degrees_and_counts_compile_one_program_once():
     assert sum("_swarm_program" in m for m in first) == 1
     second = compiles_during(lambda: fit(pts + 1.0, seed=5, **kwargs))
     assert second == []  # same shapes: nothing at all is compiled again
+
+
+def test_random_keys_and_draws_compile_apart(tmp_path):
+    """The initial draws are a small program of their own (``fit._initial_draws``, compiled
+    once per shape): threefry compiled into every swarm program cost each about 1 s."""
+    u = np.linspace(0, 1, 80)
+    pts = np.c_[u, np.sin(3 * u)]
+    jax.config.update("jax_dump_ir_to", str(tmp_path))
+    try:
+        first = compiles_during(
+            lambda: fit(pts, cps=range(4, 7), degrees=(2, 3), iterations=20, seed=3, refine=False)
+        )
+    finally:
+        jax.config.update("jax_dump_ir_to", "")
+    assert sum("_initial_draws" in m for m in first) == 1
+    programs = {p.name: p.read_text() for p in tmp_path.glob("*.mlir")}
+    swarm = [text for name, text in programs.items() if "_swarm_program" in name]
+    draws = [text for name, text in programs.items() if "_initial_draws" in name]
+    assert swarm and draws
+    assert all("threefry2x32" not in text for text in swarm)
+    assert all("threefry2x32" in text for text in draws)

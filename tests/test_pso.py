@@ -32,6 +32,20 @@ def solve(fn, dim, steps, key=0, params=None):
     return pso.run(k, state, params, box(dim), fn, steps)
 
 
+def test_init_is_init_from_its_uniform_draws():
+    k, b = jax.random.key(4), box(5)
+    seed = jnp.arange(5.0)
+    u = jax.random.uniform(k, (16, 5))
+    for s in (None, seed):
+        want = pso.init(k, b, 16, s)
+        got = pso.init_from_uniforms(u, b, s)
+        for x, y in zip(jax.tree_util.tree_leaves(want), jax.tree_util.tree_leaves(got)):
+            np.testing.assert_array_equal(x, y)
+    lo, hi = np.asarray(b.init_lower), np.asarray(b.init_upper)
+    pos = np.asarray(pso.init_from_uniforms(u, b).position)
+    np.testing.assert_allclose(pos, lo + np.asarray(u) * (hi - lo), rtol=1e-6)
+
+
 def test_converges_on_sphere_and_rosenbrock():
     state, info = solve(sphere, 4, 600)
     np.testing.assert_allclose(state.best_position, 1.5, atol=1e-3)
