@@ -1,6 +1,6 @@
 """Speed of the swarm (SPEC §5): W1 against peers in the same run, scaling curves, roofline.
 
-    python benchmarks/speed.py [--quick] [--out DIR] [--skip peers,scaling,memory,roofline]
+    python benchmarks/speed.py [--quick] [--out DIR] [--skip peers,scaling,compile,memory,roofline]
                                [--only memory,...]   # rerun sections into the last report
                                [--cpu-devices N]     # default: one per core
                                [--search-every N]    # fit's search_every, peers too
@@ -33,6 +33,9 @@ What it measures, all with ``refine=False`` (the swarm alone, the workload peers
   fitness), particles (16 ... 512), swarms (1 ... 64; degree 2-5 pairs with n <= 25 and
   128 samples, so every swarm costs the same) and iterations (W1 at 100 ... 2000); the
   cold compile time against the swarms.
+- **Compile time at fixed degrees**: the first call less the second, both at 2 iterations,
+  against the swarms (1-16 cubics; 4-64 over degrees 2-5), so that neither the run nor a
+  part running beside the other's compilation is counted.
 - **Memory**: peak RSS of W1 and of a 100,000-point fit, each in a fresh process.
 - **Roofline**: the fitness's FLOPs per particle-evaluation counted from its shapes, the
   achieved FLOP/s on W1, and this CPU's float32 peak measured by a 4096² matmul.
@@ -404,6 +407,28 @@ def section_scaling(args, report):
         print(f"scaling {key}: {pairs}", file=sys.stderr)
 
 
+def section_compile(args, report):
+    """The first call's extra time against the number of swarms, at fixed degrees: the
+    first call less the second at 2 iterations (so neither the run nor a part running
+    beside another part's compilation is in it), in this process, for one degree (cubics)
+    and for four (2-5, the swarms dealt evenly)."""
+    pts = analytic_points("f4")
+    out = {}
+    for name, degrees, counts in (
+        ("one degree (3)", (3,), args.compile_counts[0]),
+        ("four degrees (2-5)", (2, 3, 4, 5), args.compile_counts[1]),
+    ):
+        out[name] = []
+        for s in counts:
+            per = s // len(degrees)
+            kw = {**W1, "cps": range(26 - per, 26), "degrees": degrees, "num_samples": 128}
+            first, second, _ = timed(lambda kw=kw: fit(pts, iterations=2, **kw), 2)
+            out[name].append({"x": s, "compile_s": first - second})
+        cells = ", ".join(f"{r['x']}: {r['compile_s']:.1f}" for r in out[name])
+        print(f"compile against swarms, {name}: {cells}", file=sys.stderr)
+    report["compile"] = out
+
+
 def _swarm_layout(s):
     """``s`` swarms of equal cost: (cps, degrees) with n <= 25 and always n = 25 present."""
     if s <= 16:
@@ -606,6 +631,16 @@ def markdown(report) -> str:
             "2-3, 64 degrees 2-5: each degree compiles its own specialised fitness, so the "
             "compile time follows the degrees, not the swarms)"
         )
+    if "compile" in report:
+        lines += [
+            "",
+            "Compile time against swarms at fixed degrees (first call less the second, at 2 "
+            "iterations; n <= 25, 128 samples, 64 particles):",
+            "",
+        ]
+        for name, rows in report["compile"].items():
+            cells = ", ".join(f"{r['x']}: {r['compile_s']:.1f} s" for r in rows)
+            lines.append(f"- {name}: {cells}")
     if "roofline" in report:
         rf = report["roofline"]
         lines += [
@@ -622,7 +657,9 @@ def markdown(report) -> str:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--skip", default="", help="comma-separated: peers,scaling,memory,roofline")
+    ap.add_argument(
+        "--skip", default="", help="comma-separated: peers,scaling,compile,memory,roofline"
+    )
     ap.add_argument(
         "--only",
         default="",
@@ -656,10 +693,12 @@ def main(argv=None):
     args.particle_counts = (16, 64) if args.quick else (16, 32, 64, 128, 256, 512)
     args.swarm_counts = (1, 4) if args.quick else (1, 2, 4, 8, 16, 32, 64)
     args.iteration_counts = (20, 40) if args.quick else (100, 250, 500, 1000, 2000)
+    args.compile_counts = ((1, 4), (4, 8)) if args.quick else ((1, 2, 4, 8, 16), (4, 8, 16, 32, 64))
     sections = {
         "w1": section_w1,
         "peers": section_peers,
         "scaling": section_scaling,
+        "compile": section_compile,
         "memory": section_memory,
         "roofline": section_roofline,
     }

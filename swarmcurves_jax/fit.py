@@ -215,7 +215,6 @@ SWARM_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {"xla_cpu_enable_fast_min_max": 
     jax.jit,
     static_argnames=(
         "space",
-        "num_particles",
         "num_steps",
         "seeded",
         "groups",
@@ -238,7 +237,6 @@ def _swarm_program(
     shared,
     *,
     space,
-    num_particles,
     num_steps,
     seeded,
     groups,
@@ -1067,7 +1065,6 @@ def _launch(
                 dev_mask,
                 shared,
                 space=space,
-                num_particles=opts.particles,
                 num_steps=steps,
                 seeded=seeded,
                 groups=groups,
