@@ -1342,7 +1342,7 @@ def _check_memory(num_swarms, num_particles, size, num_points, num_samples, dim,
     per_particle = (
         num_points * (4 * dim + 9)  # Newton temporaries and the carried search result
         + num_samples * (4 * dim + 4)  # curve samples and derivatives
-        + 6 * size  # position, velocity, pbest, random draws, restart candidates
+        + 7 * size  # position, velocity, pbest, random draws, restart candidates, initial draws
     )
     need = 2 * num_swarms * num_particles * per_particle * itemsize  # x2: XLA temporaries
     free = _available_memory()
