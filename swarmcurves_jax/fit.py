@@ -505,10 +505,23 @@ def stack_bases(pairs, closed, num_samples, n_pad, dtype) -> SpanBasis:
 
 
 def _root_key(seed) -> jax.Array:
+    """The call's key from ``seed``: an int, or one JAX key of the default implementation
+    (typed, or its raw uint32 data), whose data the programs wrap back as such."""
+    default = jax.config.jax_default_prng_impl
     if isinstance(seed, jax.Array):
-        if jnp.issubdtype(seed.dtype, jax.dtypes.prng_key):
-            return seed
-        return jax.random.wrap_key_data(seed)
+        key = seed
+        if not jnp.issubdtype(seed.dtype, jax.dtypes.prng_key):
+            try:
+                key = jax.random.wrap_key_data(seed)
+            except TypeError:
+                key = None
+        if key is None or key.shape != () or str(jax.random.key_impl(key)) != default:
+            raise ValueError(
+                f"seed must be an int or one JAX PRNG key of the default implementation "
+                f"({default}), e.g. jax.random.key(0); got {seed.dtype} of shape {seed.shape}"
+                + ("" if key is None else f", implementation {jax.random.key_impl(key)}")
+            )
+        return key
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise ValueError(f"seed must be an int or a JAX PRNG key, got {seed!r}")
     return jax.random.key(int(seed))

@@ -5,6 +5,7 @@ import math
 import warnings
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 from hypothesis import given
@@ -66,6 +67,23 @@ BAD_INPUT = [
     ),
     ("closed not a bool", dict(closed="yes"), "closed must be True or False"),
     ("seed not an int", dict(seed="abc"), "seed must be an int or a JAX PRNG key"),
+    (
+        "seed an rbg key",
+        dict(seed=jax.random.key(0, impl="rbg")),
+        "seed must be an int or one JAX PRNG key of the default implementation (threefry2x32), "
+        "e.g. jax.random.key(0); got key<rbg> of shape (), implementation rbg",
+    ),
+    (
+        "seed several keys",
+        dict(seed=jax.random.split(jax.random.key(0), 2)),
+        "got key<fry> of shape (2,), implementation threefry2x32",
+    ),
+    (
+        "seed raw data of the wrong shape",
+        dict(seed=jax.numpy.zeros(3, jax.numpy.uint32)),
+        "seed must be an int or one JAX PRNG key of the default implementation "
+        "(threefry2x32), e.g. jax.random.key(0); got uint32 of shape (3,)",
+    ),
     ("v_max 0", dict(params=P._replace(v_max=0.0)), "params.v_max must be > 0"),
     ("NaN inertia", dict(params=P._replace(inertia=math.nan)), "params.inertia must be a finite"),
     ("patience 0", dict(params=P._replace(patience=0)), "params.patience must be >= 1"),
