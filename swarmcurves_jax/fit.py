@@ -507,19 +507,19 @@ def stack_bases(pairs, closed, num_samples, n_pad, dtype) -> SpanBasis:
 def _root_key(seed) -> jax.Array:
     """The call's key from ``seed``: an int, or one JAX key of the default implementation
     (typed, or its raw uint32 data), whose data the programs wrap back as such."""
-    default = jax.config.jax_default_prng_impl
     if isinstance(seed, jax.Array):
-        key = seed
-        if not jnp.issubdtype(seed.dtype, jax.dtypes.prng_key):
-            try:
-                key = jax.random.wrap_key_data(seed)
-            except TypeError:
-                key = None
-        if key is None or key.shape != () or str(jax.random.key_impl(key)) != default:
+        try:
+            typed = jnp.issubdtype(seed.dtype, jax.dtypes.prng_key)
+            key = seed if typed else jax.random.wrap_key_data(seed)
+            impl = str(jax.random.key_impl(key))
+        except TypeError:  # raw data of the wrong shape or type
+            key, impl = None, None
+        default = jax.config.jax_default_prng_impl
+        if impl != default or key.shape != ():
             raise ValueError(
                 f"seed must be an int or one JAX PRNG key of the default implementation "
                 f"({default}), e.g. jax.random.key(0); got {seed.dtype} of shape {seed.shape}"
-                + ("" if key is None else f", implementation {jax.random.key_impl(key)}")
+                + ("" if impl is None else f", implementation {impl}")
             )
         return key
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
@@ -1065,34 +1065,22 @@ def _launch(
         # Without tol, progress reports read the previous chunk's result after the next
         # chunk is queued, so the device never waits for the host.
         pending = None
+        static = dict(
+            space=space,
+            num_steps=steps,
+            seeded=seeded,
+            groups=groups,
+            search_every=opts.search_every,
+            mesh=place.mesh,
+            batch=place.batch,
+        )
         while run["done"] < iterations and not (stop.is_set() and run["history"]):
-            call = functools.partial(
-                _swarm_program,
-                *dev_draws,
-                state,
-                feet,
-                np.int32(run["done"]),
-                boxes,
-                seeds,
-                dev_data,
-                dev_mask,
-                shared,
-                space=space,
-                num_steps=steps,
-                seeded=seeded,
-                groups=groups,
-                search_every=opts.search_every,
-                mesh=place.mesh,
-                batch=place.batch,
-            )
+            inputs = (state, feet, np.int32(run["done"]), boxes, seeds, dev_data, dev_mask, shared)
             if not run["history"]:
                 with tracing:  # the first call's trace and lowering, cached for it
-                    call.func.trace(*call.args, **call.keywords).lower()
+                    _swarm_program.trace(*dev_draws, *inputs, **static).lower()
                 dev_draws = place.curves(drawn())
-                call = functools.partial(
-                    _swarm_program, *dev_draws, *call.args[2:], **call.keywords
-                )
-            state, feet, info = call()
+            state, feet, info = _swarm_program(*dev_draws, *inputs, **static)
             run["state"] = state
             run["history"].append(info.best_fitness)
             run["done"] += steps
