@@ -474,10 +474,25 @@ def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20, t=None
     return best
 
 
+def _host_map(fn, items) -> list:
+    """``[fn(x) for x in items]``, in order, on a thread per CPU: the host's per-swarm
+    work (least-squares seeds, true projections) runs while no program does, and its k-d
+    tree queries and LAPACK solves release Python's lock.  Measured on W1 (2 cores, warm):
+    seeds 0.27 -> 0.19 s, projections 0.18 -> 0.13 s, the same curves bit for bit."""
+    items = list(items)
+    workers = min(len(items), os.cpu_count() or 1)
+    if workers < 2:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(fn, items))
+
+
 def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
     """One least-squares position per swarm, laid out like a particle."""
     out = np.zeros((len(pairs), space.size))
-    for i, (k, n) in enumerate(pairs):
+
+    def one(i):
+        k, n = pairs[i]
         t = None
         if space.num_knots:  # free knots: start where the data turn (knots.curvature_widths)
             spans = n if closed else n - k
@@ -488,6 +503,8 @@ def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
             t = _knots(out[i], k, n, space)
         ctrl = least_squares_ctrl(norm_pts, n, k, closed, ends, t=t)
         out[i, : n * space.dim] = ctrl.ravel()
+
+    _host_map(one, range(len(pairs)))
     return out.astype(dtype)
 
 
@@ -1241,10 +1258,9 @@ def _collect(run: _Launched) -> list[FitResult]:
             for i, options in enumerate(candidates):
                 if refined[1][b, i] < options[0][1]:
                     options.append((refined[0][b, i], float(refined[1][b, i]), True))
-        solutions = [
-            _make_curve(
-                k,
-                n,
+        solutions = _host_map(
+            lambda i, b=b, prep=prep: _make_curve(
+                *pairs[i],
                 candidates[i],
                 int(swarm[2][b, i]),
                 space,
@@ -1253,9 +1269,9 @@ def _collect(run: _Launched) -> list[FitResult]:
                 prep.center,
                 prep.scale,
                 prep.seed_value,
-            )
-            for i, (k, n) in enumerate(pairs)
-        ]
+            ),
+            range(len(pairs)),
+        )
         # What the curve would have reported alone: a lone fit stops after the chunk in
         # which it reaches tol.
         reason = run.stop_reason

@@ -203,3 +203,28 @@ def test_callback_without_tol_reports_every_chunk_in_order():
     assert [i for i, _ in calls] == [100, 200, 250]
     np.testing.assert_allclose(calls[-1][1], result.history[:, -1], rtol=1e-6)
     assert np.all(calls[1][1] <= calls[0][1])  # the best ever never worsens
+
+
+def test_host_work_on_threads_equals_the_plain_loop():
+    """The seeds (and projections) run on a thread per CPU (``fit._host_map``): in order,
+    each swarm's seed exactly its own least-squares fit, and an error comes out as raised."""
+    from swarmcurves_jax.fit import _host_map, _seeds, _Space, least_squares_ctrl, normalise
+
+    pts = normalise(random_bspline_points(8, 3, False, seed=2)[0])[0]
+    pairs = [(k, n) for k in (1, 2, 3) for n in range(4, 9)]
+    space = _Space(n_pad=8, dim=2, rational=False, num_knots=0)
+    ends = (pts[0], pts[-1])
+    seeds = _seeds(pairs, space, pts, False, ends, np.float64)
+    for (k, n), seed in zip(pairs, seeds, strict=True):
+        expected = least_squares_ctrl(pts, n, k, False, ends).ravel()
+        np.testing.assert_array_equal(seed[: 2 * n], expected)
+        assert not seed[2 * n :].any()
+    assert _host_map(lambda x: x * x, range(50)) == [x * x for x in range(50)]
+
+    def fails(x):
+        if x == 7:
+            raise ValueError("swarm 7")
+        return x
+
+    with pytest.raises(ValueError, match="swarm 7"):
+        _host_map(fails, range(20))
