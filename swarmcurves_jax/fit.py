@@ -476,9 +476,10 @@ def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20, t=None
 
 def _host_map(fn, items) -> list:
     """``[fn(x) for x in items]``, in order, on a thread per CPU: the host's per-swarm
-    work (least-squares seeds, true projections) runs while no program does, and its k-d
-    tree queries and LAPACK solves release Python's lock.  Measured on W1 (2 cores, warm):
-    seeds 0.27 -> 0.19 s, projections 0.18 -> 0.13 s, the same curves bit for bit."""
+    work (least-squares seeds, true projections) comes before and after a lone fit's swarm
+    program, and its k-d tree queries and LAPACK solves release Python's lock.  Measured
+    on W1 (2 cores, warm): seeds 0.27 -> 0.19 s, projections 0.18 -> 0.13 s, the same
+    curves bit for bit."""
     items = list(items)
     workers = min(len(items), os.cpu_count() or 1)
     if workers < 2:
