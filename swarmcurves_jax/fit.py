@@ -490,23 +490,20 @@ def _host_map(fn, items) -> list:
 
 def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
     """One least-squares position per swarm, laid out like a particle."""
-    out = np.zeros((len(pairs), space.size))
 
-    def one(i):
-        k, n = pairs[i]
-        t = None
+    def one(pair):
+        k, n = pair
+        row, t = np.zeros(space.size), None
         if space.num_knots:  # free knots: start where the data turn (knots.curvature_widths)
             spans = n if closed else n - k
             logits = logits_from_widths(curvature_widths(norm_pts, spans, closed))
-            logits = np.clip(logits, -KNOT_LOGIT_BOUND, KNOT_LOGIT_BOUND)
             first = space.size - space.num_knots
-            out[i, first : first + spans] = logits
-            t = _knots(out[i], k, n, space)
-        ctrl = least_squares_ctrl(norm_pts, n, k, closed, ends, t=t)
-        out[i, : n * space.dim] = ctrl.ravel()
+            row[first : first + spans] = np.clip(logits, -KNOT_LOGIT_BOUND, KNOT_LOGIT_BOUND)
+            t = _knots(row, k, n, space)
+        row[: n * space.dim] = least_squares_ctrl(norm_pts, n, k, closed, ends, t=t).ravel()
+        return row
 
-    _host_map(one, range(len(pairs)))
-    return out.astype(dtype)
+    return np.stack(_host_map(one, pairs)).astype(dtype)
 
 
 def stack_bases(pairs, closed, num_samples, n_pad, dtype) -> SpanBasis:
