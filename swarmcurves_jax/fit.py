@@ -138,9 +138,14 @@ def _geometry(q, space):
 
 
 def _distances(q, basis, points, space, pair, k, foot=None):
-    """Estimated distance of every point to the curve of position ``q``: shape (N,)."""
+    """Estimated distance of every point to the curve of position ``q``: shape (N,).
+
+    On the CPU without the search's barrier (:func:`~swarmcurves_jax.fitness.point_distances`):
+    the programs that call this compile under :data:`CPU_COMPILER_OPTIONS`, without the
+    YNNPACK fusions it guards against.  Other backends keep it (not measured without)."""
     basis = space.basis(q, pair, k, basis)
-    return point_distances(*_geometry(q, space), basis, points, foot, degree=k)
+    barrier = jax.default_backend() != "cpu"
+    return point_distances(*_geometry(q, space), basis, points, foot, degree=k, barrier=barrier)
 
 
 def _feet(q, basis, points, space, pair, k, dense=True):

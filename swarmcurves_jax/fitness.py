@@ -383,16 +383,18 @@ def foot_samples(
     return search(points, *curve_samples(ctrl, weights, basis))
 
 
-def _span_and_start(j: jax.Array, basis: SpanBasis, dtype):
+def _span_and_start(j: jax.Array, basis: SpanBasis, dtype, barrier: bool = True):
     """Each point's span (int32) and start parameter ``tau`` from its sample index.
 
-    ``sqrt`` first: XLA:CPU's fusion copies cheap elementwise producers into every
-    consumer, so unless an op it counts as expensive stands between them, every later use
-    of ``j`` recomputes the whole search.  ``floor(sqrt(j*j + 1/4))`` is ``j`` exactly for
-    any index below 4096 (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).  Measured at W1's
-    shapes: without it the fitness runs 5x slower under JAX's default compiler options
-    (``optimization_barrier`` does not help), 4-9 % faster under ``fit``'s; the fitness is
-    public, so it stays.
+    ``barrier``: ``sqrt`` first.  Under XLA:CPU's YNNPACK fusions (JAX's default), cheap
+    elementwise producers are copied into every consumer, so unless an op XLA counts as
+    expensive stands between them, every later use of ``j`` recomputes the whole search.
+    ``floor(sqrt(j*j + 1/4))`` is ``j`` exactly for any index below 4096
+    (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).  Measured at W1's shapes: without it the
+    fitness runs 5x slower under JAX's default compiler options (``optimization_barrier``
+    does not help); with those fusions off (:data:`~swarmcurves_jax.fit.CPU_COMPILER_OPTIONS`)
+    nothing is recomputed, and the sqrt's latency only lengthens each point's chain of
+    dependent operations (W1 4 % slower with it).
 
     The span is ``floor((j + 1/2) * (1/per))`` in floats, exact below 4096 (checked for
     every ``per`` in float32): XLA:CPU does not vectorise an integer division by a traced
@@ -401,7 +403,8 @@ def _span_and_start(j: jax.Array, basis: SpanBasis, dtype):
     programs and not in others, and the sharded and the lone fit would differ.
     """
     jf = j.astype(dtype)
-    jf = jnp.floor(jnp.sqrt(jf * jf + 0.25))
+    if barrier:
+        jf = jnp.floor(jnp.sqrt(jf * jf + 0.25))
     per = basis.per_span.astype(dtype)
     inv = 1.0 / per
     span = jnp.minimum(jnp.floor((jf + 0.5) * inv), (basis.num_spans - 1).astype(dtype))
@@ -434,20 +437,25 @@ def point_distances(
     points: jax.Array,
     foot: jax.Array | None = None,
     degree: int | None = None,
+    *,
+    barrier: bool = True,
 ) -> jax.Array:
     """Distance from every point (N, D) to a point of the curve near its foot: shape (N,);
     differentiable in the control points, weights and (free) knots (used by
     :mod:`swarmcurves_jax.refine`).  ``foot``: the search's result
     (:func:`foot_samples`), if already known.  ``degree``: the curve's degree if static
     (cheaper: a polygon's search is its exact distance, :func:`polyline_distances`,
-    unless ``foot`` is given), else read from ``basis.degree``.
+    unless ``foot`` is given), else read from ``basis.degree``.  ``barrier``: keep the
+    search from being recomputed per reader under JAX's default XLA:CPU options; a
+    program compiled without YNNPACK fusions (``fit``'s) passes False
+    (:func:`_span_and_start`).  The same values either way.
     """
     if degree == 1 and weights is None and foot is None:  # a polygon: exact at once
         return polyline_distances(points, *curve_samples(ctrl, None, basis))
     dim = points.shape[1]
     hom = _homogeneous(ctrl, weights)
     j = nearest_sample(points, *curve_samples(ctrl, weights, basis)) if foot is None else foot
-    span, tau = _span_and_start(j, basis, points.dtype)
+    span, tau = _span_and_start(j, basis, points.dtype, barrier)
     coef = jnp.einsum("srn,nc->src", basis.table, hom, precision=PRECISION)  # (S, K+3, cols)
     num_spans, rows, cols = coef.shape
     # Each point's span rows by a chain of selects (no gather): (rows, cols) arrays (N,)
@@ -512,7 +520,10 @@ def point_distances(
         # Newton's curvature term only where it shortens the step: where the distance
         # is not convex a Gauss-Newton step, and never more than half a span.
         h = jnp.maximum(gauss + sum(q[i] * c2[i] for i in range(dim)), gauss)
-        tau = jnp.clip(tau - jnp.clip(g / jnp.maximum(h, 1e-30), -0.5, 0.5), lo, hi)
+        # tau - clip(step, -1/2, 1/2) clipped to [lo, hi], exactly: tau lies in both, and
+        # the bounds come off the chain of dependent operations (they wait for no step).
+        low, high = jnp.maximum(lo, tau - 0.5), jnp.minimum(hi, tau + 0.5)
+        tau = jnp.clip(tau - g / jnp.maximum(h, 1e-30), low, high)
     # The foot point is optimal, so by the envelope theorem the distance's derivative with
     # respect to the curve is its partial at a fixed foot: no gradient through Newton.
     c0 = curve(jax.lax.stop_gradient(tau))[0]

@@ -258,6 +258,29 @@ def test_fitness_never_undercuts_and_is_near_exact(closed, n, k, rational):
         assert est.mean() - exact.mean() <= 1e-3 + 0.05 * exact.mean()
 
 
+@pytest.mark.parametrize("closed,n,k,rational", [(False, 8, 3, False), (True, 7, 2, True)])
+def test_the_search_barrier_changes_no_value(closed, n, k, rational):
+    """``barrier=False`` (fit's swarm program, compiled without YNNPACK fusions) drops only
+    an exact identity on the sample index: the same distances, bit for bit."""
+    from swarmcurves_jax.fit import CPU_COMPILER_OPTIONS
+
+    xn, cn, w, _ = _random_curve(n, k, closed, 3, rational)
+    basis = as_jax(make_span_basis(n, k, closed, default_num_samples([(k, n)], closed)))
+    pts, wj = jnp.asarray(xn, jnp.float32), jnp.asarray(w, jnp.float32) if rational else None
+    trial = jnp.asarray(cn + 1e-2 * np.random.default_rng(4).standard_normal(cn.shape), jnp.float32)
+    got = [
+        np.asarray(
+            jax.jit(
+                lambda c, b=b: point_distances(c, wj, basis, pts, degree=k, barrier=b),
+                compiler_options=CPU_COMPILER_OPTIONS,
+            )(trial)
+        )
+        for b in (True, False)
+    ]
+    assert np.all(got[0] > 0)
+    np.testing.assert_array_equal(got[0], got[1])
+
+
 @pytest.mark.parametrize(
     "closed,n,k,rational", [(False, 6, 3, False), (True, 9, 2, False), (False, 6, 3, True)]
 )
