@@ -137,14 +137,11 @@ def _geometry(q, space):
     return ctrl, None if log_w is None else jnp.exp(log_w)
 
 
-def _distances(q, basis, points, space, pair, k, foot=None):
+def _distances(q, basis, points, space, pair, k, foot=None, barrier=True):
     """Estimated distance of every point to the curve of position ``q``: shape (N,).
-
-    On the CPU without the search's barrier (:func:`~swarmcurves_jax.fitness.point_distances`):
-    the programs that call this compile under :data:`CPU_COMPILER_OPTIONS`, without the
-    YNNPACK fusions it guards against.  Other backends keep it (not measured without)."""
+    ``barrier=False`` where ``foot`` is stored, not fused from a search in the same loop
+    (:func:`~swarmcurves_jax.fitness.point_distances`)."""
     basis = space.basis(q, pair, k, basis)
-    barrier = jax.default_backend() != "cpu"
     return point_distances(*_geometry(q, space), basis, points, foot, degree=k, barrier=barrier)
 
 
@@ -152,6 +149,33 @@ def _feet(q, basis, points, space, pair, k, dense=True):
     """Each point's search result on the curve of position ``q``: shape (N,) int32."""
     basis = space.basis(q, pair, k, basis)
     return foot_samples(*_geometry(q, space), basis, points, dense)
+
+
+def _search_apart(space: _Space) -> bool:
+    """Whether the swarm's search runs in a branch of its own every iteration, its result
+    stored and read by the Newton steps: on the CPU, with fixed knots.
+
+    After the search, each point's span selects, Newton steps and divisions form one chain
+    of dependent operations, and XLA:CPU's fused loop over the points waits on it (measured
+    on W1: leaving one exact ``sqrt`` out of the chain made it 4 % faster, with as many
+    instructions).  With the search apart, the chain needs no ``sqrt`` barrier and can run
+    two points per loop trip (:func:`_paired`).  Measured on a 2-core AVX2 EPYC: W1 (warm,
+    interleaved in one process) 3.87 s fused -> 3.63 s apart -> 3.45 s paired; the swarm
+    stage of 2D degrees 4-5 (300 iterations) 0.86 -> 0.76 -> 0.71 s; 3D cubics and 3D
+    quintics within 3 % either way.  Free knots keep the fused search (each particle's
+    basis would be built twice: 1.7x slower paired), and other backends too (a branch per
+    iteration there is not measured).
+    """
+    return jax.default_backend() == "cpu" and not space.num_knots
+
+
+def _paired(space: _Space, k: int) -> bool:
+    """Whether the Newton steps run two points per loop trip (the points in two halves):
+    where a point's span coefficients, ``(k + 3) x (dim [+ 1 if rational])`` values, are at
+    most 16.  Two chains of more spill AVX2's 16 registers: 3D quintics (24 values) ran
+    15 % slower paired, a 2D rational cubic (18) 3 %; three or four parts of W1's points
+    ran slower than one (4.25 and 4.40 against 3.63 s)."""
+    return _search_apart(space) and (k + 3) * (space.dim + space.rational) <= 16
 
 
 def _by_degree(fn, groups, bases, *args):
@@ -273,26 +297,43 @@ def _swarm_program(
         run_keys = jax.random.wrap_key_data(key_data)
 
         def group_fitness(pair, positions, feet, basis, k, search):
-            """The group's fitness (P,) and feet.  The search runs inside each evaluation
-            (fused with it) when it runs every iteration: always for a polygon, whose
-            Newton step cannot leave its segment.  Else it runs every ``search_every``
-            iterations in its own branch, so that its result is stored once, not
-            recomputed by each reader (XLA:CPU fuses cheap producers into each)."""
+            """The group's fitness (P,) and feet.  A polygon's search is its exact distance,
+            run inside each evaluation (no Newton steps).  Otherwise the search runs in a
+            branch of its own (every ``search_every`` iterations, or every iteration where
+            :func:`_search_apart`), so that its result is stored once, not recomputed by
+            each reader (XLA:CPU fuses cheap producers into each); else it is fused."""
 
-            def one(q, foot):
-                return _masked_mean(_distances(q, basis, points, space, pair, k, foot), mask, count)
+            def one(q, foot, barrier=True):
+                d = _distances(q, basis, points, space, pair, k, foot, barrier)
+                return _masked_mean(d, mask, count)
 
-            if k == 1 or search_every == 1:
+            def two(q, foot):  # two independent chains per loop trip: :func:`_paired`
+                h = points.shape[0] // 2  # a bucket length is a multiple of 16
+                a, b = (
+                    _distances(q, basis, points[s], space, pair, k, foot[s], False) * mask[s]
+                    for s in (slice(None, h), slice(h, None))
+                )
+                return jnp.sum(a + b) * (1.0 / count)  # as _masked_mean
+
+            if k == 1 or (search_every == 1 and not _search_apart(space)):
                 return jax.vmap(lambda q: one(q, None))(positions), feet
 
             def searched():
                 return jax.vmap(lambda q: _feet(q, basis, points, space, pair, k, False))(positions)
 
-            feet = jax.lax.cond(search, searched, lambda: feet)
-            return jax.vmap(one)(positions, feet), feet
+            stored = (
+                feet if search_every > 1 else jnp.zeros((len(positions), *mask.shape), jnp.int32)
+            )
+            found = jax.lax.cond(search, searched, lambda: stored)
+            read = two if _paired(space, k) else functools.partial(one, barrier=False)
+            return jax.vmap(read)(positions, found), found if search_every > 1 else feet
 
         def fitness(positions, feet, iteration):  # (swarms, P, dim) -> (swarms, P), feet
-            search = functools.partial(group_fitness, search=iteration % search_every == 0)
+            # With search_every 1 every iteration searches, by `iteration >= 0`: a constant
+            # true would dissolve the branch (and fuse the search again), and XLA cannot
+            # fold this one (`first` is a runtime value).
+            search = iteration % search_every == 0 if search_every > 1 else iteration >= 0
+            search = functools.partial(group_fitness, search=search)
             return _by_degree(search, groups, bases, pairs, positions, feet)
 
         (state, feet), info = pso.run_swarms(

@@ -386,15 +386,15 @@ def foot_samples(
 def _span_and_start(j: jax.Array, basis: SpanBasis, dtype, barrier: bool = True):
     """Each point's span (int32) and start parameter ``tau`` from its sample index.
 
-    ``barrier``: ``sqrt`` first.  Under XLA:CPU's YNNPACK fusions (JAX's default), cheap
-    elementwise producers are copied into every consumer, so unless an op XLA counts as
-    expensive stands between them, every later use of ``j`` recomputes the whole search.
-    ``floor(sqrt(j*j + 1/4))`` is ``j`` exactly for any index below 4096
-    (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).  Measured at W1's shapes: without it the
-    fitness runs 5x slower under JAX's default compiler options (``optimization_barrier``
-    does not help); with those fusions off (:data:`~swarmcurves_jax.fit.CPU_COMPILER_OPTIONS`)
-    nothing is recomputed, and the sqrt's latency only lengthens each point's chain of
-    dependent operations (W1 4 % slower with it).
+    ``barrier``: ``sqrt`` first.  XLA:CPU's fusion copies cheap elementwise producers into
+    every consumer, so where the search is fused into the same loop, unless an op XLA
+    counts as expensive stands between them, every later use of ``j`` recomputes the whole
+    search.  ``floor(sqrt(j*j + 1/4))`` is ``j`` exactly for any index below 4096
+    (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).  Measured without it: the fitness 5x slower
+    at W1's shapes under JAX's default compiler options (``optimization_barrier`` does not
+    help), a 2D rational swarm 5x slower under ``fit``'s.  Where ``j`` is stored (a
+    branch's result, an input) nothing can be recomputed, and the sqrt only lengthens each
+    point's chain of dependent operations (W1 4 % slower with it).
 
     The span is ``floor((j + 1/2) * (1/per))`` in floats, exact below 4096 (checked for
     every ``per`` in float32): XLA:CPU does not vectorise an integer division by a traced
@@ -445,10 +445,10 @@ def point_distances(
     :mod:`swarmcurves_jax.refine`).  ``foot``: the search's result
     (:func:`foot_samples`), if already known.  ``degree``: the curve's degree if static
     (cheaper: a polygon's search is its exact distance, :func:`polyline_distances`,
-    unless ``foot`` is given), else read from ``basis.degree``.  ``barrier``: keep the
-    search from being recomputed per reader under JAX's default XLA:CPU options; a
-    program compiled without YNNPACK fusions (``fit``'s) passes False
-    (:func:`_span_and_start`).  The same values either way.
+    unless ``foot`` is given), else read from ``basis.degree``.  ``barrier``: keep a search
+    fused into the same loop from being recomputed per reader of its index; False only
+    where ``foot`` is stored, not computed in that loop (:func:`_span_and_start`).  The
+    same values either way.
     """
     if degree == 1 and weights is None and foot is None:  # a polygon: exact at once
         return polyline_distances(points, *curve_samples(ctrl, None, basis))

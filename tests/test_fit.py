@@ -1,8 +1,10 @@
 """fit(): recovery of known curves, determinism, the result objects, bad input."""
 
+import importlib
 import json
 import math
 
+import jax
 import numpy as np
 import pytest
 
@@ -203,6 +205,34 @@ def test_callback_without_tol_reports_every_chunk_in_order():
     assert [i for i, _ in calls] == [100, 200, 250]
     np.testing.assert_allclose(calls[-1][1], result.history[:, -1], rtol=1e-6)
     assert np.all(calls[1][1] <= calls[0][1])  # the best ever never worsens
+
+
+@pytest.mark.parametrize("rational,search_every", [(False, 1), (True, 1), (False, 4)])
+def test_search_apart_agrees_with_the_fused_search(monkeypatch, rational, search_every):
+    """On the CPU the swarm's search runs in a branch of its own, and the Newton steps read
+    its stored result, two points per loop trip where a span has few coefficients
+    (``fit._search_apart``, ``fit._paired``).  The per-point distances are those of the
+    fused search, only summed in another order: the first iteration's best fitness of
+    every swarm agrees with the fused program's to float32 rounding."""
+    F = importlib.import_module("swarmcurves_jax.fit")  # the package's `fit` is the function
+
+    assert F._search_apart(F._Space(n_pad=8, dim=2, rational=rational))  # tests run on a CPU
+    assert F._paired(F._Space(n_pad=8, dim=2, rational=False), 3)
+    assert not F._paired(F._Space(n_pad=8, dim=2, rational=True), 3)  # 18 coefficients
+    pts = random_bspline_points(10, 3, False, seed=3)[0]
+    # free ends: the padding repeats the last point, which then counts if misread
+    kw = dict(cps=range(5, 8), degrees=(2, 3), iterations=3, refine=False, fix_ends=False)
+    try:
+        jax.clear_caches()  # the monkeypatched choice is read when the program traces
+        apart = fit(pts, rational=rational, search_every=search_every, **kw).history
+        monkeypatch.setattr(F, "_search_apart", lambda space: False)
+        monkeypatch.setattr(F, "_paired", lambda space, k: False)
+        jax.clear_caches()
+        fused = fit(pts, rational=rational, search_every=search_every, **kw).history
+    finally:
+        jax.clear_caches()  # later tests must not reuse the fused program
+    assert apart.shape == fused.shape == (6, 3)
+    np.testing.assert_allclose(apart[:, 0], fused[:, 0], rtol=1e-5)
 
 
 def test_host_work_on_threads_equals_the_plain_loop():
