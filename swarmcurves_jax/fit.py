@@ -162,7 +162,7 @@ def _search_apart(space: _Space) -> bool:
     two points per loop trip (:func:`_paired`).  Measured on a 2-core AVX2 EPYC: W1 (warm,
     interleaved in one process) 3.87 s fused -> 3.63 s apart -> 3.45 s paired; the swarm
     stage of 2D degrees 4-5 (300 iterations) 0.86 -> 0.76 -> 0.71 s; 3D cubics and 3D
-    quintics within 3 % either way.  Free knots keep the fused search (each particle's
+    quintics within 4 % either way.  Free knots keep the fused search (each particle's
     basis would be built twice: 1.7x slower paired), and other backends too (a branch per
     iteration there is not measured).
     """
