@@ -137,11 +137,13 @@ def _geometry(q, space):
     return ctrl, None if log_w is None else jnp.exp(log_w)
 
 
-def _distances(q, basis, points, space, pair, k, foot=None, barrier=True):
+def _distances(q, basis, points, space, pair, k, foot=None):
     """Estimated distance of every point to the curve of position ``q``: shape (N,).
-    ``barrier=False`` where ``foot`` is stored, not fused from a search in the same loop
+    A ``foot`` given here is stored (a branch's result, the dense search's ``argmin``),
+    never fused from a search in the same loop, so it needs no barrier
     (:func:`~swarmcurves_jax.fitness.point_distances`)."""
     basis = space.basis(q, pair, k, basis)
+    barrier = foot is None
     return point_distances(*_geometry(q, space), basis, points, foot, degree=k, barrier=barrier)
 
 
@@ -193,10 +195,15 @@ def _by_degree(fn, groups, bases, *args):
     return jax.tree_util.tree_map(lambda *p: jnp.concatenate(p), *parts)
 
 
-def _masked_mean(d, mask, count):
-    """Mean of ``d`` over the real points: the padding (``mask`` 0) adds nothing.  Times
-    the reciprocal, not ``/ count``: see :func:`swarmcurves_jax.fitness._span_and_start`."""
-    return jnp.sum(d * mask) * (1.0 / count)
+def _masked_mean(distances, mask, count, parts: int = 1):
+    """Mean of ``distances(cut)`` over the real points: the padding (``mask`` 0) adds
+    nothing.  The points are cut into ``parts`` equal slices whose distances are summed
+    elementwise, so that each loop trip runs ``parts`` independent chains (:func:`_paired`).
+    Times the reciprocal, not ``/ count``: see
+    :func:`swarmcurves_jax.fitness._span_and_start`."""
+    size = mask.shape[0] // parts
+    d = [distances(c) * mask[c] for c in (slice(i * size, (i + 1) * size) for i in range(parts))]
+    return jnp.sum(sum(d[1:], d[0])) * (1.0 / count)
 
 
 def _over_curves(fn, per_curve, shared, mesh, batch):
@@ -303,20 +310,16 @@ def _swarm_program(
             :func:`_search_apart`), so that its result is stored once, not recomputed by
             each reader (XLA:CPU fuses cheap producers into each); else it is fused."""
 
-            def one(q, foot, barrier=True):
-                d = _distances(q, basis, points, space, pair, k, foot, barrier)
-                return _masked_mean(d, mask, count)
+            def mean(q, foot, parts=1):  # a bucket length is a multiple of 16: 2 parts fit
+                def at(cut):
+                    return _distances(
+                        q, basis, points[cut], space, pair, k, None if foot is None else foot[cut]
+                    )
 
-            def two(q, foot):  # two independent chains per loop trip: :func:`_paired`
-                h = points.shape[0] // 2  # a bucket length is a multiple of 16
-                a, b = (
-                    _distances(q, basis, points[s], space, pair, k, foot[s], False) * mask[s]
-                    for s in (slice(None, h), slice(h, None))
-                )
-                return jnp.sum(a + b) * (1.0 / count)  # as _masked_mean
+                return _masked_mean(at, mask, count, parts)
 
             if k == 1 or (search_every == 1 and not _search_apart(space)):
-                return jax.vmap(lambda q: one(q, None))(positions), feet
+                return jax.vmap(lambda q: mean(q, None))(positions), feet
 
             def searched():
                 return jax.vmap(lambda q: _feet(q, basis, points, space, pair, k, False))(positions)
@@ -325,7 +328,7 @@ def _swarm_program(
                 feet if search_every > 1 else jnp.zeros((len(positions), *mask.shape), jnp.int32)
             )
             found = jax.lax.cond(search, searched, lambda: stored)
-            read = two if _paired(space, k) else functools.partial(one, barrier=False)
+            read = functools.partial(mean, parts=2 if _paired(space, k) else 1)
             return jax.vmap(read)(positions, found), found if search_every > 1 else feet
 
         def fitness(positions, feet, iteration):  # (swarms, P, dim) -> (swarms, P), feet

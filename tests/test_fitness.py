@@ -260,8 +260,8 @@ def test_fitness_never_undercuts_and_is_near_exact(closed, n, k, rational):
 
 @pytest.mark.parametrize("closed,n,k,rational", [(False, 8, 3, False), (True, 7, 2, True)])
 def test_the_search_barrier_changes_no_value(closed, n, k, rational):
-    """``barrier=False`` (fit's swarm program, compiled without YNNPACK fusions) drops only
-    an exact identity on the sample index: the same distances, bit for bit."""
+    """``barrier=False`` (fit's Newton steps reading a stored search result) drops only an
+    exact identity on the sample index: the same distances, bit for bit."""
     from swarmcurves_jax.fit import CPU_COMPILER_OPTIONS
 
     xn, cn, w, _ = _random_curve(n, k, closed, 3, rational)
