@@ -142,9 +142,11 @@ def _distances(q, basis, points, space, pair, k, foot=None):
     A ``foot`` given here is stored (a branch's result, the dense search's ``argmin``),
     never fused from a search in the same loop, so it needs no barrier
     (:func:`~swarmcurves_jax.fitness.point_distances`)."""
+    uniform = not space.num_knots
     basis = space.basis(q, pair, k, basis)
-    barrier = foot is None
-    return point_distances(*_geometry(q, space), basis, points, foot, degree=k, barrier=barrier)
+    return point_distances(
+        *_geometry(q, space), basis, points, foot, degree=k, barrier=foot is None, uniform=uniform
+    )
 
 
 def _feet(q, basis, points, space, pair, k, dense=True):

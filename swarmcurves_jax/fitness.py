@@ -258,8 +258,10 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
     The distance comes from the offset to the segment's foot (:func:`_segment_d2`), which
     costs fewer operations than ``|d|**2`` less the part along the tangent and does not
     cancel (measured: the search 10-13 % less CPU time at W1's shapes).
-    Carrying the distance and its index by ``where`` instead was measured: 5 % less CPU
-    time on W1, but 10x slower with 128 samples for degrees 4 and 5.
+    In 2D, where the samples fit one unrolled block, the index is carried by a ``where``
+    beside the distance instead (measured, the search's CPU time: 9 % less at 32 samples,
+    5 % at 80, 3 % at 96; W1 1.5 % faster.  In 3D 15-30 % slower at 40 and 64 samples;
+    carried through a scan of blocks, 10x slower at 128 samples for degrees 4 and 5).
     """
     num, dim = samples.shape
     num_blocks, size = search_blocks(num, dim)
@@ -278,7 +280,9 @@ def polyline_distances(points: jax.Array, samples: jax.Array, tangents: jax.Arra
 
 def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
     """The smallest squared point-to-segment distance (N,) over the segments; with
-    ``bits`` > 0, as int32 bits whose low ``bits`` hold the segment's index.
+    ``bits`` > 0, int32 whose low ``bits`` hold the nearest segment's index, and the
+    distance's bits above them (zeros where 2D segments fit one block: there the index
+    is carried by a select, :func:`nearest_sample`).
 
     The minimum of the tagged bits is taken as integers: non-negative floats order as
     their bits do, and no denormal is flushed (a float 0 tagged would be one)."""
@@ -288,7 +292,7 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
     half, unit = _unit_tangents(tangents)
     coords = [points[:, i] for i in range(dim)]
 
-    def block_min(acc, blk):
+    def block_min(acc, blk, carry=False):
         # The samples' scalars, broadcast over the points, are unstacked in one operation
         # per coordinate, not indexed one by one: tracing under the swarm's two vmaps costs
         # about 0.2 ms per operation, and the indexing was two thirds of the search's
@@ -302,6 +306,12 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
         for m in range(shape[0]):
             diff = [p - c[m] for p, c in zip(coords, sample)]
             d2 = _segment_d2(diff, [e[m] for e in unit], -hi[m], hi[m])
+            if carry:  # (distance, index), the first of equal distances kept
+                if acc is None:
+                    acc = d2, jnp.zeros(d2.shape, jnp.int32)
+                else:
+                    acc = jnp.minimum(acc[0], d2), jnp.where(d2 < acc[0], jnp.int32(m), acc[1])
+                continue
             if bits:  # in float32, whatever the points' precision: the tag is int32
                 d2 = jax.lax.bitcast_convert_type(d2.astype(jnp.float32), jnp.int32)
                 d2 = (d2 & keep) | (first + m)
@@ -309,6 +319,8 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
         return acc
 
     if num_blocks == 1:
+        if bits and dim == 2:
+            return block_min(None, (jnp.int32(0), samples, unit, half), carry=True)[1]
         return block_min(None, (jnp.int32(0), samples, unit, half))
     pad = num_blocks * size - num
     blocks = [
@@ -439,6 +451,7 @@ def point_distances(
     degree: int | None = None,
     *,
     barrier: bool = True,
+    uniform: bool = False,
 ) -> jax.Array:
     """Distance from every point (N, D) to a point of the curve near its foot: shape (N,);
     differentiable in the control points, weights and (free) knots (used by
@@ -448,7 +461,10 @@ def point_distances(
     unless ``foot`` is given), else read from ``basis.degree``.  ``barrier``: keep a search
     fused into the same loop from being recomputed per reader of its index; False only
     where ``foot`` is stored, not computed in that loop (:func:`_span_and_start`).  The
-    same values either way.
+    same values either way.  ``uniform``: ``basis`` is on uniform knots
+    (:func:`make_span_basis`), where a span's bounds are the first span's, the last's or
+    (every middle span) the same as both neighbours', so two selects find them, not the
+    chain over the spans (2 (spans - 1) selects fewer per point); the same values.
     """
     if degree == 1 and weights is None and foot is None:  # a polygon: exact at once
         return polyline_distances(points, *curve_samples(ctrl, None, basis))
@@ -465,15 +481,21 @@ def point_distances(
     entries = jnp.unstack(coef.reshape(-1))
     span_lo, span_hi = jnp.unstack(basis.lo), jnp.unstack(basis.hi)
 
-    def span_row(s):  # span s's coefficients and bounds, broadcast over the points
-        row = (*entries[s * width : (s + 1) * width], span_lo[s], span_hi[s])
+    def span_row(s):  # span s's coefficients (and bounds), broadcast over the points
+        row = entries[s * width : (s + 1) * width]
+        row = (*row, span_lo[s], span_hi[s]) if not uniform else row
         return [jnp.broadcast_to(e, tau.shape) for e in row]
 
     chosen = span_row(0)
     for s in range(1, num_spans):
         hit = span == s
         chosen = [jax.lax.select(hit, a, b) for a, b in zip(span_row(s), chosen)]
-    *flat, lo, hi = chosen
+    if uniform:  # the spans past the last repeat it (make_span_basis)
+        lo = jnp.where(span == 0, span_lo[0], span_lo[-1])
+        hi = jnp.where(span == basis.num_spans - 1, span_hi[-1], span_hi[0])
+        flat = chosen
+    else:
+        *flat, lo, hi = chosen
     sel = [flat[r * cols : (r + 1) * cols] for r in range(rows)]
     top = rows - 3  # the degree K of the table
     after, before = sel[top + 1], sel[top + 2]

@@ -282,6 +282,32 @@ def test_the_search_barrier_changes_no_value(closed, n, k, rational):
 
 
 @pytest.mark.parametrize(
+    "closed,n,k,rational",
+    [(False, 4, 3, False), (False, 9, 3, False), (True, 7, 2, True), (False, 6, 5, False)],
+)
+def test_uniform_bounds_change_no_value(closed, n, k, rational):
+    """``uniform=True`` (fit's fixed knots) takes a span's Newton bounds from the first,
+    the last or any middle span instead of the chain of selects: the same distances, bit
+    for bit, from a lone span (n = k + 1) to many, with and without padded spans."""
+    xn, cn, w, _ = _random_curve(n, k, closed, 5, rational)
+    samples = default_num_samples([(k, n)], closed)
+    basis = as_jax(make_span_basis(n, k, closed, samples, n + 2, (n if closed else n - k) + 2))
+    pts, wj = jnp.asarray(xn, jnp.float32), jnp.asarray(w, jnp.float32) if rational else None
+    pad = np.zeros((2, cn.shape[1]))
+    trial = cn + 3e-2 * np.random.default_rng(6).standard_normal(cn.shape)
+    trial = jnp.asarray(np.vstack([trial, pad]), jnp.float32)
+    wj = None if wj is None else jnp.concatenate([wj, jnp.ones(2, jnp.float32)])
+    got = [
+        np.asarray(
+            jax.jit(lambda c, u=u: point_distances(c, wj, basis, pts, degree=k, uniform=u))(trial)
+        )
+        for u in (False, True)
+    ]
+    assert np.all(got[0] > 0)
+    np.testing.assert_array_equal(got[0], got[1])
+
+
+@pytest.mark.parametrize(
     "closed,n,k,rational", [(False, 6, 3, False), (True, 9, 2, False), (False, 6, 3, True)]
 )
 def test_reused_search_never_undercuts_and_follows_small_moves(closed, n, k, rational):
