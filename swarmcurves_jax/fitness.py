@@ -303,6 +303,10 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
         rows = lambda a: jnp.unstack(jnp.broadcast_to(a[:, None], shape))  # noqa: E731
         sample, unit = [rows(block[:, i]) for i in range(dim)], [rows(u[:, i]) for i in range(dim)]
         hi = rows(h)
+        if carry:  # the indices as values (plus a zero XLA cannot fold: NaN only if h is),
+            # read in the loop like the samples, not a constant broadcast for each sample
+            # (measured: W1 1.6 % faster)
+            index = rows(jnp.arange(shape[0], dtype=jnp.int32) + (h[0] != h[0]).astype(jnp.int32))
         for m in range(shape[0]):
             diff = [p - c[m] for p, c in zip(coords, sample)]
             d2 = _segment_d2(diff, [e[m] for e in unit], -hi[m], hi[m])
@@ -310,7 +314,7 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
                 if acc is None:
                     acc = d2, jnp.zeros(d2.shape, jnp.int32)
                 else:
-                    acc = jnp.minimum(acc[0], d2), jnp.where(d2 < acc[0], jnp.int32(m), acc[1])
+                    acc = jnp.minimum(acc[0], d2), jnp.where(d2 < acc[0], index[m], acc[1])
                 continue
             if bits:  # in float32, whatever the points' precision: the tag is int32
                 d2 = jax.lax.bitcast_convert_type(d2.astype(jnp.float32), jnp.int32)
