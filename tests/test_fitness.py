@@ -288,7 +288,7 @@ def test_the_search_barrier_changes_no_value(closed, n, k, rational):
 def test_uniform_bounds_change_no_value(closed, n, k, rational):
     """``uniform=True`` (fit's fixed knots) takes a span's Newton bounds from the first,
     the last or any middle span instead of the chain of selects: the same distances, bit
-    for bit, from a lone span (n = k + 1) to many, with and without padded spans."""
+    for bit, from a lone span (n = k + 1) to many, with padded spans and control points."""
     xn, cn, w, _ = _random_curve(n, k, closed, 5, rational)
     samples = default_num_samples([(k, n)], closed)
     basis = as_jax(make_span_basis(n, k, closed, samples, n + 2, (n if closed else n - k) + 2))
