@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["design_matrix", "find_span", "basis_functions"]
+__all__ = ["design_matrix", "design_matrices", "find_span", "basis_functions", "derivative_bases"]
 
 
 def find_span(u: np.ndarray, t: np.ndarray, k: int) -> np.ndarray:
@@ -39,18 +39,47 @@ def basis_functions(u, t, p: int, nu: int, span, xp=np):
     m = t.shape[0]
     if nu > p:
         return xp.zeros((u.shape[0], m - p - 1), dtype=u.dtype)
-    if nu > 0:
-        lower = basis_functions(u, t, p - 1, nu - 1, span, xp)
-        a = p * _safe_inv(t[p : m - 1] - t[: m - 1 - p], xp)[None, :]
-        b = p * _safe_inv(t[p + 1 :] - t[1 : m - p], xp)[None, :]
-        return lower[:, :-1] * a - lower[:, 1:] * b
+    return _differentiate(_values(u, t, span, xp, {p - nu})[p - nu], t, p, nu, xp)
+
+
+def derivative_bases(u, t, p: int, max_nu: int, span, xp=np) -> list:
+    """``[basis_functions(u, t, p, nu, span) for nu in range(max_nu + 1)]`` from one
+    Cox–de Boor pass (each derivative starts from a lower degree's values, which the pass
+    makes on its way): the same numbers, for about half the work at ``max_nu`` 2."""
+    m = t.shape[0]
+    values = _values(u, t, span, xp, {p - nu for nu in range(min(max_nu, p) + 1)})
+    return [
+        _differentiate(values[p - nu], t, p, nu, xp)
+        if nu <= p
+        else xp.zeros((u.shape[0], m - p - 1), dtype=u.dtype)
+        for nu in range(max_nu + 1)
+    ]
+
+
+def _values(u, t, span, xp, keep: set) -> dict:
+    """The basis functions' values at the degrees in ``keep``, by degree."""
+    m = t.shape[0]
     basis = (span[:, None] == xp.arange(m - 1)[None, :]).astype(u.dtype)
+    out = {0: basis} if 0 in keep else {}
     uu, tt = u[:, None], t[None, :]
-    for q in range(1, p + 1):
+    for q in range(1, max(keep) + 1):
         left = (uu - tt[:, : m - 1 - q]) * _safe_inv(tt[:, q : m - 1] - tt[:, : m - 1 - q], xp)
         right = (tt[:, q + 1 :] - uu) * _safe_inv(tt[:, q + 1 :] - tt[:, 1 : m - q], xp)
         basis = left * basis[:, :-1] + right * basis[:, 1:]
-    return basis
+        if q in keep:
+            out[q] = basis
+    return out
+
+
+def _differentiate(lower, t, p: int, nu: int, xp):
+    """The ``nu``-th derivative of the degree-``p`` basis from the degree-``(p - nu)``
+    values ``lower``: ``nu`` steps of the derivative recursion."""
+    m = t.shape[0]
+    for q in range(p - nu + 1, p + 1):
+        a = q * _safe_inv(t[q : m - 1] - t[: m - 1 - q], xp)[None, :]
+        b = q * _safe_inv(t[q + 1 :] - t[1 : m - q], xp)[None, :]
+        lower = lower[:, :-1] * a - lower[:, 1:] * b
+    return lower
 
 
 def design_matrix(
@@ -78,8 +107,20 @@ def design_matrix(
     """
     u = np.asarray(u, dtype=np.float64).reshape(-1)
     t = np.asarray(t, dtype=np.float64)
-    span = find_span(u, t, k)
-    basis = basis_functions(u, t, k, nu, span)
+    return _fold(basis_functions(u, t, k, nu, find_span(u, t, k)), k, closed)
+
+
+def design_matrices(u: np.ndarray, t: np.ndarray, k: int, max_nu: int, *, closed=False) -> list:
+    """``[design_matrix(u, t, k, nu=nu, closed=closed) for nu in range(max_nu + 1)]``, the
+    same numbers from one recursion (:func:`derivative_bases`): a curve's point and
+    derivatives, as the host's projections need them at every Newton step."""
+    u = np.asarray(u, dtype=np.float64).reshape(-1)
+    t = np.asarray(t, dtype=np.float64)
+    return [_fold(b, k, closed) for b in derivative_bases(u, t, k, max_nu, find_span(u, t, k))]
+
+
+def _fold(basis: np.ndarray, k: int, closed: bool) -> np.ndarray:
+    """A periodic basis's last ``k`` columns folded onto its first ``k``."""
     if closed:
         n = basis.shape[1] - k
         basis[:, :k] += basis[:, n:]

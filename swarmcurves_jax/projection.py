@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .basis import design_matrix
+from .basis import design_matrices
 from .knots import breakpoints
 
 __all__ = ["curve_derivatives", "project_points", "dense_parameters"]
@@ -27,7 +27,7 @@ def curve_derivatives(u, ctrl, weights, t, k, closed, max_nu=2):
     """Curve points and derivatives ``[C, C', ...]`` at ``u`` (rational quotient rule)."""
     u = np.asarray(u, dtype=np.float64).reshape(-1)
     wp = ctrl * weights[:, None]
-    a = [design_matrix(u, t, k, nu=nu, closed=closed) for nu in range(max_nu + 1)]
+    a = design_matrices(u, t, k, max_nu, closed=closed)
     num = [b @ wp for b in a]
     den = [b @ weights for b in a]
     c0 = num[0] / den[0][:, None]

@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from scipy.interpolate import BSpline
 
 from swarmcurves_jax import clamped_uniform_knots, design_matrix, make_knots, periodic_uniform_knots
+from swarmcurves_jax.basis import design_matrices
 from swarmcurves_jax.projection import curve_derivatives
 
 
@@ -58,6 +59,21 @@ def test_derivatives_match_scipy(kn, u, nu):
     c = np.eye(n)
     ref = BSpline(t, c, k)(u, nu=nu) if len(u) else np.zeros((0, n))
     np.testing.assert_allclose(design_matrix(u, t, k, nu=nu), ref, atol=1e-8 * max(1, n) ** nu)
+
+
+@given(degree_count, params, st.booleans(), st.integers(0, 6))
+def test_design_matrices_equal_each_design_matrix(kn, u, closed, max_nu):
+    """One recursion for all derivatives gives each one's numbers, bit for bit (past the
+    degree: zeros), open and periodic."""
+    k, n = kn
+    t = make_knots(n, k, closed)
+    u = np.asarray(u) * (0.999 if closed else 1.0)
+    got = design_matrices(u, t, k, max_nu, closed=closed)
+    assert len(got) == max_nu + 1
+    for nu, b in enumerate(got):
+        np.testing.assert_array_equal(b, design_matrix(u, t, k, nu=nu, closed=closed))
+    if max_nu > k:
+        assert not np.any(got[-1])
 
 
 @given(degree_count, params, st.booleans())
