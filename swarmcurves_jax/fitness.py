@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .basis import basis_functions, design_matrix
+from .basis import derivative_bases, design_matrices
 from .knots import breakpoints, knots_from_widths, make_knots, span_widths
 
 __all__ = [
@@ -169,8 +169,7 @@ def make_span_basis(
         )
     widths = np.diff(breaks)
     power = np.zeros((size, rows, n_pad))
-    for nu in range(k + 1):
-        b = design_matrix(breaks[:-1], t, k, nu=nu, closed=closed)  # at each span's start
+    for nu, b in enumerate(design_matrices(breaks[:-1], t, k, k, closed=closed)):  # span starts
         power[:spans, nu, :n] = b * (widths**nu / math.factorial(nu))[:, None]
     widths = np.r_[widths, np.ones(size - spans)]
     return _span_basis(power, widths, spans, k, closed, num_samples, np)
@@ -197,8 +196,7 @@ def free_knot_basis(
     own = jnp.minimum(jnp.arange(size), num_spans - 1)
     start = t[own + k]
     rows = []
-    for nu in range(k + 1):
-        b = basis_functions(start, t, k, nu, own + k, jnp)
+    for nu, b in enumerate(derivative_bases(start, t, k, k, own + k, jnp)):
         if closed:  # basis function c drives control point c mod n
             cols = jnp.arange(b.shape[1]) % num_spans
             b = float32_matmul(b, (cols[:, None] == jnp.arange(n_pad)[None, :]).astype(b.dtype))
@@ -289,10 +287,11 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
     num, dim = samples.shape
     num_blocks, size = search_blocks(num, dim)
     keep = jnp.int32(~((1 << bits) - 1))  # the distance's bits above the tag
+    carry = bits > 0 and dim == 2 and num_blocks == 1  # the index by a select (nearest_sample)
     half, unit = _unit_tangents(tangents)
     coords = [points[:, i] for i in range(dim)]
 
-    def block_min(acc, blk, carry=False):
+    def block_min(acc, blk):
         # The samples' scalars, broadcast over the points, are unstacked in one operation
         # per coordinate, not indexed one by one: tracing under the swarm's two vmaps costs
         # about 0.2 ms per operation, and the indexing was two thirds of the search's
@@ -323,9 +322,8 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
         return acc
 
     if num_blocks == 1:
-        if bits and dim == 2:
-            return block_min(None, (jnp.int32(0), samples, unit, half), carry=True)[1]
-        return block_min(None, (jnp.int32(0), samples, unit, half))
+        best = block_min(None, (jnp.int32(0), samples, unit, half))
+        return best[1] if carry else best
     pad = num_blocks * size - num
     blocks = [
         jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]).reshape(
