@@ -65,7 +65,12 @@ from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
 from swarmcurves_jax.devices import cpu_devices
 from swarmcurves_jax.fit import _degree_groups, normalise, stack_bases
-from swarmcurves_jax.fitness import NEWTON_STEPS, foot_samples, point_distances
+from swarmcurves_jax.fitness import (
+    NEWTON_STEPS,
+    foot_samples,
+    point_distances,
+    starts_on_segment,
+)
 from swarmcurves_jax.pso import default_params
 
 REPO = Path(__file__).resolve().parents[1]
@@ -103,18 +108,21 @@ def searches(evaluation, k, every):
     return k == 1 or evaluation % every == 0
 
 
-def numpy_fitness(positions, basis, points, k, feet=None, newton_steps=NEWTON_STEPS, xp=np):
+def numpy_fitness(positions, basis, points, k, feet=None, every=1, xp=np):
     """Our fitness (:func:`swarmcurves_jax.fitness.point_distances`: nearest tangent-segment
-    sample, then safeguarded Newton on the span's exact polynomial, extended into its
-    neighbours) for one swarm of degree ``k``, vectorised over particles and written the
-    plain way: a dense (N, M) ``argmin`` and gathers.  ``xp``: NumPy (the NumPy and pyswarms
-    peers) or ``jax.numpy`` (evosax's plain-JAX peer: the same code, jit-compiled).
-    ``feet`` (P, N): the samples of an earlier search to start from instead of searching.
+    sample, in 2D the foot on that segment, then safeguarded Newton on the span's exact
+    polynomial, extended into its neighbours) for one swarm of degree ``k``, vectorised
+    over particles and written the plain way: a dense (N, M) ``argmin`` and gathers.
+    ``xp``: NumPy (the NumPy and pyswarms peers) or ``jax.numpy`` (evosax's plain-JAX peer:
+    the same code, jit-compiled).  ``feet`` (P, N): an earlier search's starts (in samples,
+    :func:`swarmcurves_jax.fitness.search_starts`) instead of searching; ``every``: ``fit``'s
+    ``search_every``, above 1 all :data:`NEWTON_STEPS` from a start that may be stale.
     Returns the fitness (P,) and the feet."""
     num, dim = positions.shape[0], points.shape[1]
     ctrl = positions.reshape(num, -1, dim)
     n = ctrl.shape[1]
     table, lo_s, hi_s = basis.table[:, :, :n], basis.lo, basis.hi
+    on_segment = starts_on_segment(basis.sample_value.shape[-2], dim)
     if feet is None:
         samples = xp.einsum("mn,pnd->pmd", basis.sample_value[:, :n], ctrl)
         tang = xp.einsum("mn,pnd->pmd", basis.sample_tangent[:, :n], ctrl)
@@ -122,11 +130,13 @@ def numpy_fitness(positions, basis, points, k, feet=None, newton_steps=NEWTON_ST
         along = xp.einsum("pnmd,pmd->pnm", diff, tang)
         len2 = xp.maximum(xp.sum(tang**2, axis=2), 1e-30)[:, None, :]
         s = xp.clip(along / len2, -1.0, 1.0)
-        feet = xp.argmin(xp.sum(diff**2, axis=3) - s * (2.0 * along - s * len2), axis=2)
-    j = feet  # (P, N)
+        j = xp.argmin(xp.sum(diff**2, axis=3) - s * (2.0 * along - s * len2), axis=2)
+        feet = j + 0.5  # (P, N), the sample's centre; in 2D its segment's foot
+        if on_segment:
+            feet = feet + 0.5 * xp.take_along_axis(s, j[:, :, None], axis=2)[:, :, 0]
     per = basis.per_span  # arrays, not ints: jax.numpy's peer vmaps over swarms
-    span = xp.minimum(j // per, basis.num_spans - 1)
-    tau = xp.clip((j - span * per + 0.5) / per, 0.5 / per, 1 - 0.5 / per)
+    span = xp.minimum(xp.floor(feet) // per, basis.num_spans - 1).astype(np.int32)
+    tau = xp.clip((feet - span * per) / per, 0.0, 1.0)
     coef = xp.einsum("srn,pnd->psrd", table, ctrl)[xp.arange(num)[:, None], span]  # (P,N,R,D)
     lo, hi = lo_s[span], hi_s[span]
     top = table.shape[1] - 3
@@ -147,7 +157,7 @@ def numpy_fitness(positions, basis, points, k, feet=None, newton_steps=NEWTON_ST
         return v, d1, d2
 
     start = None
-    for _ in range(1 if k == 1 else newton_steps):
+    for _ in range(1 if k == 1 else NEWTON_STEPS - (on_segment and every == 1)):
         c0, c1, c2 = curve(tau)
         q = c0 - points[None]
         start = q if start is None else start
@@ -166,7 +176,7 @@ def numpy_pso(basis, points, dim, k, iterations, every=1, particles=64, seed=0):
     rng = np.random.default_rng(seed)
     q = rng.uniform(-1, 1, (particles, dim)).astype(np.float32)
     v = np.zeros_like(q)
-    f, feet = numpy_fitness(q, basis, points, k)
+    f, feet = numpy_fitness(q, basis, points, k, every=every)
     pbest, pbest_f = q.copy(), f.copy()
     for i in range(1, iterations + 1):
         g = pbest[np.argmin(pbest_f)]
@@ -174,7 +184,8 @@ def numpy_pso(basis, points, dim, k, iterations, every=1, particles=64, seed=0):
         v = p.inertia * v + p.cognitive * r1 * (pbest - q) + p.social * r2 * (g - q)
         v = np.clip(v, -p.v_max, p.v_max)
         q = q + v
-        f, feet = numpy_fitness(q, basis, points, k, None if searches(i, k, every) else feet)
+        feet = None if searches(i, k, every) else feet
+        f, feet = numpy_fitness(q, basis, points, k, feet, every)
         better = f < pbest_f
         pbest[better], pbest_f[better] = q[better], f[better]
     return float(pbest_f.min())
@@ -190,7 +201,7 @@ def pyswarms_run(basis, points, dim, k, iterations, every=1, particles=64, seed=
     def cost(x):  # pyswarms evaluates the whole swarm, in a fixed order, once per iteration
         i = carried["evaluation"]
         feet = None if searches(i, k, every) else carried["feet"]
-        f, carried["feet"] = numpy_fitness(x.astype(np.float32), basis, points, k, feet)
+        f, carried["feet"] = numpy_fitness(x.astype(np.float32), basis, points, k, feet, every)
         carried["evaluation"] = i + 1
         return f
 
@@ -224,12 +235,14 @@ def evosax_program(groups, iterations, every=1, particles=64, plain=False):
 
     def one_swarm(key, basis, points, k):
         def distance(q, foot):
-            return jnp.mean(point_distances(q.reshape(10, 2), None, basis, points, foot, k))
+            ctrl = q.reshape(10, 2)
+            distances = point_distances(ctrl, None, basis, points, foot, k, stale=every > 1)
+            return jnp.mean(distances)
 
         def evaluate(pop, feet):
             """(fitness (P,), feet), searching first where ``feet`` is None."""
             if plain:
-                return numpy_fitness(pop, basis, points, k, feet, xp=jnp)
+                return numpy_fitness(pop, basis, points, k, feet, every, xp=jnp)
             if feet is None:
                 feet = jax.vmap(
                     lambda q: foot_samples(q.reshape(10, 2), None, basis, points, dense=False)
@@ -246,7 +259,7 @@ def evosax_program(groups, iterations, every=1, particles=64, plain=False):
 
         k0, k1, k2 = jax.random.split(key, 3)
         pop = jax.random.uniform(k0, (particles, dim), jnp.float32, -1.0, 1.0)
-        fit0, feet = fitness(pop, jnp.zeros((particles, points.shape[0]), jnp.int32), 0)
+        fit0, feet = fitness(pop, jnp.zeros((particles, points.shape[0]), jnp.float32), 0)
         state = es.init(k1, pop, fit0, params)
 
         def step(carry, xs):
@@ -480,8 +493,10 @@ def fitness_flops(n_pts, groups, bases, n_pad, dim, particles, every=1):
         every_k = 1 if k == 1 else every
         table = 0 if k == 1 else spans * rows  # a polygon's fitness needs no span table
         matmuls = 2 * n_pad * dim * (2 * samples / every_k + table)  # samples, table
-        # diff, along, clip, offset to the foot, its square, tag (not a polygon's), min
-        search = n_pts * samples * (7 * dim + (1 if k == 1 else 3)) / every_k
+        # diff, along, clip, offset to the foot, its square, tag (not a polygon's) or the
+        # index's select, min, and where the search starts Newton on the segment its select
+        on_segment = k > 1 and starts_on_segment(samples, dim)
+        search = n_pts * samples * (7 * dim + (1 if k == 1 else 3 + on_segment)) / every_k
         update = 12 * n_pad * dim  # the PSO update
         if k == 1:  # a polygon's search is its distance (fitness.polyline_distances)
             rest = n_pts  # a sqrt; no Newton
@@ -491,7 +506,7 @@ def fitness_flops(n_pts, groups, bases, n_pad, dim, particles, every=1):
             step = 6 * top * dim + jump + 10 * dim + 12  # Horner (3 orders), Newton update
             final = 2 * top * dim + jump + 3 * dim + 4  # the foot point and the distance
             # the first step starts inside its span: no jump terms
-            rest = select + n_pts * (NEWTON_STEPS * step - jump + final)
+            rest = select + n_pts * ((NEWTON_STEPS - on_segment) * step - jump + final)
         total += (j - i) * particles * (matmuls + search + rest + update)
         swarms += j - i
     return total / (swarms * particles), total

@@ -35,6 +35,7 @@ from .basis import design_matrix
 from .curves import Curve
 from .devices import Placement, cpu_devices
 from .fitness import (
+    PRECISION,
     SpanBasis,
     foot_samples,
     free_knot_basis,
@@ -137,20 +138,28 @@ def _geometry(q, space):
     return ctrl, None if log_w is None else jnp.exp(log_w)
 
 
-def _distances(q, basis, points, space, pair, k, foot=None):
+def _distances(q, basis, points, space, pair, k, foot=None, stale=False):
     """Estimated distance of every point to the curve of position ``q``: shape (N,).
-    A ``foot`` given here is stored (a branch's result, the dense search's ``argmin``),
-    never fused from a search in the same loop, so it needs no barrier
-    (:func:`~swarmcurves_jax.fitness.point_distances`)."""
+    A ``foot`` given here is stored (a branch's result, the dense search's),
+    never fused from a search in the same loop, so it needs no barrier; ``stale``: it may
+    be an earlier position's (:func:`~swarmcurves_jax.fitness.point_distances`)."""
     uniform = not space.num_knots
     basis = space.basis(q, pair, k, basis)
     return point_distances(
-        *_geometry(q, space), basis, points, foot, degree=k, barrier=foot is None, uniform=uniform
+        *_geometry(q, space),
+        basis,
+        points,
+        foot,
+        degree=k,
+        barrier=foot is None,
+        uniform=uniform,
+        stale=stale,
     )
 
 
 def _feet(q, basis, points, space, pair, k, dense=True):
-    """Each point's search result on the curve of position ``q``: shape (N,) int32."""
+    """Where each point's Newton steps start on the curve of position ``q``, in samples:
+    shape (N,) float (:func:`~swarmcurves_jax.fitness.search_starts`)."""
     basis = space.basis(q, pair, k, basis)
     return foot_samples(*_geometry(q, space), basis, points, dense)
 
@@ -201,11 +210,15 @@ def _masked_mean(distances, mask, count, parts: int = 1):
     """Mean of ``distances(cut)`` over the real points: the padding (``mask`` 0) adds
     nothing.  The points are cut into ``parts`` equal slices whose distances are summed
     elementwise, so that each loop trip runs ``parts`` independent chains (:func:`_paired`).
+    The sum is a product with ones: XLA:CPU rewrites a sum of more than 32 values as a
+    pass of partial sums over the stored distances, which took longer than the product
+    (measured on W1, warm, interleaved in one process: 3.05 against 3.10 s).
     Times the reciprocal, not ``/ count``: see
     :func:`swarmcurves_jax.fitness._span_and_start`."""
     size = mask.shape[0] // parts
     d = [distances(c) * mask[c] for c in (slice(i * size, (i + 1) * size) for i in range(parts))]
-    return jnp.sum(sum(d[1:], d[0])) * (1.0 / count)
+    total = sum(d[1:], d[0])
+    return jnp.dot(total, jnp.ones_like(total), precision=PRECISION) * (1.0 / count)
 
 
 def _over_curves(fn, per_curve, shared, mesh, batch):
@@ -285,7 +298,7 @@ def _swarm_program(
     """Run ``num_steps`` PSO steps of every swarm of every curve; swarms whose ``step`` is 0
     start fresh.  Per curve (leading axis): ``keys`` and ``draws``, each swarm's run key
     data and initial draws (:func:`_initial_draws`), ``state``, ``feet`` (the
-    last search's samples, (swarms, P, N) int32; ``()`` when ``search_every`` is 1),
+    last search's starts, (swarms, P, N) floats; ``()`` when ``search_every`` is 1),
     ``boxes``, ``seeds``, ``points`` (padded to a bucket length) and ``mask`` (1 on real
     points); ``shared``: ``(pairs, params, bases, tol, max_steps)``; ``first``: the
     iteration this chunk starts at (the searches fall on multiples of ``search_every``).
@@ -314,8 +327,9 @@ def _swarm_program(
 
             def mean(q, foot, parts=1):  # a bucket length is a multiple of 16: 2 parts fit
                 def at(cut):
+                    found = None if foot is None else foot[cut]
                     return _distances(
-                        q, basis, points[cut], space, pair, k, None if foot is None else foot[cut]
+                        q, basis, points[cut], space, pair, k, found, search_every > 1
                     )
 
                 return _masked_mean(at, mask, count, parts)
@@ -327,7 +341,7 @@ def _swarm_program(
                 return jax.vmap(lambda q: _feet(q, basis, points, space, pair, k, False))(positions)
 
             stored = (
-                feet if search_every > 1 else jnp.zeros((len(positions), *mask.shape), jnp.int32)
+                feet if search_every > 1 else jnp.zeros((len(positions), *mask.shape), points.dtype)
             )
             found = jax.lax.cond(search, searched, lambda: stored)
             read = functools.partial(mean, parts=2 if _paired(space, k) else 1)
@@ -935,24 +949,34 @@ def _run_group(preps, opts: _Options, **kwargs) -> list[FitResult]:
     return _collect(_launch(preps, opts, **kwargs))
 
 
-def _split_swarms(groups, parts: int) -> list[np.ndarray]:
-    """The swarms of a call dealt into at most ``parts`` sets of similar cost, each set in
-    call order.  Each set compiles a program with its own degree groups, so whole groups
-    are dealt first (the costliest to the least loaded set); then single swarms move from
-    the most to the least loaded set while that set stays below the other: freely within
-    a degree it already has, and to start a new degree there only 5 % below.
+def _swarm_costs(pairs, groups, closed: bool, columns: int) -> np.ndarray:
+    """Each swarm's fitness work per point, in search samples: a spline's samples, plus
+    ``5 + spans (k + 3) columns / 5`` for its span selects and Newton steps (``spans``: its
+    group's, ``columns``: D, + 1 if rational); a polygon's 1.25 a segment (its search is
+    its distance, :func:`~swarmcurves_jax.fitness.polyline_distances`).  Fitted to the
+    CPU time of W1's groups (stop 27): a sample 3.4 us a swarm and iteration, the rest
+    20 samples' worth for the quadratics (8 spans), 22 for the cubics (7), a polygon 11.5
+    for 9 segments.  ``benchmarks/bench_w1.py`` times the split it gives."""
+    cost = np.zeros(len(pairs))
+    for k, i, j, samples in groups:
+        spans = max(n if closed else n - k for _, n in pairs[i:j])
+        cost[i:j] = 1.25 * samples if k == 1 else samples + 5 + spans * (k + 3) * columns / 5
+    return cost
 
-    A swarm's cost is its group's search samples plus 10, a rough count of the work per
-    point after the search; a polygon has none (its search is its distance:
-    :func:`~swarmcurves_jax.fitness.polyline_distances`).  ``benchmarks/bench_w1.py``
-    times the result.
+
+def _split_swarms(groups, parts: int, cost: np.ndarray) -> list[np.ndarray]:
+    """The swarms of a call dealt into at most ``parts`` sets of similar ``cost`` (per
+    swarm, :func:`_swarm_costs`), each set in call order.  Each set compiles a program
+    with its own degree groups, so whole groups are dealt first (the costliest to the
+    least loaded set); then single swarms move from the most to the least loaded set
+    while that set stays below the other: freely into a group it already has, and to
+    start a new group there only 5 % below.
     """
     count = min(parts, groups[-1][2])
     sets, load = [[] for _ in range(count)], np.zeros(count)
-    cost = np.zeros(groups[-1][2])
-    degree = np.zeros(groups[-1][2], int)
-    for k, i, j, samples in groups:
-        cost[i:j], degree[i:j] = samples + (10 if k > 1 else 0), k
+    group = np.zeros(groups[-1][2], int)
+    for g, (_, i, j, _) in enumerate(groups):
+        group[i:j] = g
     for k, i, j, _ in sorted(groups, key=lambda g: (-cost[g[1]] * (g[2] - g[1]), g[1])):
         d = int(np.argmin(load))
         sets[d] += range(i, j)
@@ -961,7 +985,7 @@ def _split_swarms(groups, parts: int) -> list[np.ndarray]:
         top, low = int(np.argmax(load)), int(np.argmin(load))
         best = None
         for i in sorted(sets[top], key=lambda i: (-cost[i], i)):
-            known = degree[i] in degree[sets[low]]
+            known = group[i] in group[sets[low]]
             if load[low] + cost[i] < load[top] * (1.0 if known else 0.95):
                 best = i
                 break
@@ -974,7 +998,7 @@ def _split_swarms(groups, parts: int) -> list[np.ndarray]:
 
 
 def _part_groups(groups, chosen: np.ndarray):
-    """:func:`_degree_groups` of the swarms ``chosen``, each degree keeping the whole
+    """:func:`_degree_groups` of the swarms ``chosen``, each group keeping the whole
     call's search samples (so a swarm's result does not depend on the split), and per
     group its index in ``groups`` and the positions of its chosen swarms there."""
     out, within = [], []
@@ -1072,16 +1096,19 @@ def _launch(
         stack_bases(pairs[i:j], space.closed, samples, space.n_pad, dtype)
         for _, i, j, samples in groups
     )
-    refine_bases = tuple(
-        stack_bases(
-            pairs[i:j],
-            space.closed,
-            max(samples, default_num_samples(pairs[i:j], space.closed, REFINE_SAMPLES_PER_SPAN)),
-            space.n_pad,
-            dtype,
+    refine_bases = None  # only for a refinement (W1's 21 swarms: 9 ms)
+    if opts.method is not None:
+        per_span = REFINE_SAMPLES_PER_SPAN
+        refine_bases = tuple(
+            stack_bases(
+                pairs[i:j],
+                space.closed,
+                max(samples, default_num_samples(pairs[i:j], space.closed, per_span)),
+                space.n_pad,
+                dtype,
+            )
+            for _, i, j, samples in groups
         )
-        for _, i, j, samples in groups
-    )
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
     tol_arr = np.asarray(-1.0 if tol is None else tol, dtype)
     max_steps = np.asarray(iterations, np.int32)
@@ -1112,9 +1139,7 @@ def _launch(
         ``drawn()``: these swarms' :func:`_initial_draws`, waited for only after the trace.
         ``report(iteration, best)`` follows the chunks."""
         reuse = opts.search_every > 1
-        feet = (
-            np.zeros((*seeds.shape[:2], opts.particles, data.shape[1]), np.int32) if reuse else ()
-        )
+        feet = np.zeros((*seeds.shape[:2], opts.particles, data.shape[1]), dtype) if reuse else ()
         state, feet, boxes, seeds, dev_data, dev_mask = place.curves(
             (state, feet, boxes, seeds, data, mask)
         )
@@ -1167,7 +1192,10 @@ def _launch(
         if pending is not None:
             report(pending[0], np.asarray(place.get(pending[1])))
 
-    parts = [] if not split or place.mesh is not None else _split_swarms(groups, len(split))
+    parts = []
+    if split and place.mesh is None:
+        cost = _swarm_costs(pairs, groups, space.closed, space.dim + space.rational)
+        parts = _split_swarms(groups, len(split), cost)
     order = np.argsort(np.concatenate(parts)) if parts else None
     events, stop = queue.Queue(), threading.Event()
 
@@ -1350,7 +1378,12 @@ def _degree_groups(pairs, closed, num_samples=None) -> tuple[tuple[int, int, int
 
     Splitting a run so that its smaller counts search fewer samples was measured on W1
     (two groups each for degrees 2 and 3, 24 % less search work on paper): no gain in
-    time within the noise, and a longer compile, so a degree is one group.
+    time within the noise, and a longer compile, so a degree is one group.  Measured
+    again at stop 27, with the search stored apart: W1 2.68 s warm with both degrees cut
+    (2.86 s with one), against 3.03 s, but cold 9.8-10.1 s (8.6 s with one) against 7.6 s,
+    and the smaller counts, searching 4 samples a span where they had searched up to 16,
+    found exact curves less often (two paper cases over seeds 0-5: 5 of 12 against 7 of
+    12; ``tests/test_paper.py``'s sparse cubic lost at seed 0): still one group.
     """
     out = []
     for i, (k, _) in enumerate(pairs):

@@ -9,9 +9,10 @@ exactly into both neighbours.
 
 Per particle, the curve is sampled a few times per span; each data point takes the
 sample whose tangent segment is nearest (:func:`nearest_sample`), which fixes its span
-and a start parameter; then a few safeguarded Newton steps on that span's exact
-polynomial (allowed one span either way) find the foot point.  The distance is to a true
-point of the curve, so the fitness never undercuts the true mean distance; the reported
+and a start parameter (in 2D, the foot on that segment: a Gauss-Newton step taken by the
+search itself, :func:`search_starts`); then a few safeguarded Newton steps on that span's
+exact polynomial (allowed one span either way) find the foot point.  The distance is to
+a true point of the curve, so the fitness never undercuts the true mean distance; the reported
 errors are still recomputed on the host (:mod:`swarmcurves_jax.projection`).  A polygon's
 samples are its segments, so its search is its exact distance
 (:func:`polyline_distances`), with nothing to refine.
@@ -41,6 +42,8 @@ __all__ = [
     "curve_samples",
     "nearest_sample",
     "nearest_sample_dense",
+    "search_starts",
+    "starts_on_segment",
     "polyline_distances",
     "foot_samples",
     "point_distances",
@@ -60,8 +63,12 @@ def float32_matmul(a, b, xp=jnp):
     return a @ b if xp is np else jnp.matmul(a, b, precision=PRECISION)
 
 
-#: Newton steps from the searched sample: measured on W1's least-squares curves, three
-#: bring the mean distance within 1e-5 (relative, median) of the true projection.
+#: Newton steps from the searched sample's centre: measured on W1's least-squares curves,
+#: three bring the mean distance within 1e-5 (relative, median) of the true projection.
+#: One fewer where the search starts each point at its foot on the nearest tangent segment
+#: (:func:`starts_on_segment`): that start is a Gauss-Newton step the search has already
+#: paid for (measured, ``benchmarks/fitness_accuracy.py``: median over-estimate 1.7e-6
+#: with it and two steps, 5.4e-6 from the centre with three).
 NEWTON_STEPS = 3
 
 
@@ -237,6 +244,27 @@ def search_blocks(num: int, dim: int) -> tuple[int, int]:
     return blocks, -(-num // blocks)
 
 
+def starts_on_segment(num: int, dim: int) -> bool:
+    """Whether the search of ``num`` samples in ``dim`` dimensions also finds each point's
+    foot on its nearest tangent segment (:func:`search_starts`): in 2D where the samples
+    fit one unrolled block, whose index is carried by a select with room for the foot
+    beside it.  Elsewhere the index is packed into the distance's low bits, with no room,
+    and Newton takes one step more, from the sample's centre (:data:`NEWTON_STEPS`)."""
+    return dim == 2 and search_blocks(num, dim)[0] == 1
+
+
+def _search(points, samples, tangents) -> tuple[jax.Array, jax.Array | None]:
+    """The nearest tangent segment's index (N,) int32 (:func:`nearest_sample`) and, where
+    :func:`starts_on_segment`, the point's foot on it, ``s`` in [-1, 1] (N,); else None."""
+    num, dim = samples.shape
+    num_blocks, size = search_blocks(num, dim)
+    bits = max(1, (num_blocks * size - 1).bit_length())  # padded samples' indices too
+    best = _min_over_segments(points, samples, tangents, bits)
+    if starts_on_segment(num, dim):
+        return best
+    return jnp.minimum(best & ((1 << bits) - 1), num - 1), None
+
+
 def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -> jax.Array:
     """Index of the sample whose tangent segment ``samples[m] + s * tangents[m]``,
     ``|s| <= 1``, is nearest to each point: (N,) int32.
@@ -259,13 +287,26 @@ def nearest_sample(points: jax.Array, samples: jax.Array, tangents: jax.Array) -
     In 2D, where the samples fit one unrolled block, the index is carried by a ``where``
     beside the distance instead (measured, the search's CPU time: 9 % less at 32 samples,
     5 % at 80, 3 % at 96; W1 1.5 % faster.  In 3D 15-30 % slower at 40 and 64 samples;
-    carried through a scan of blocks, 10x slower at 128 samples for degrees 4 and 5).
+    carried through a scan of blocks, 10x slower at 128 samples for degrees 4 and 5), and
+    the foot on the segment beside it (:func:`search_starts`).
     """
-    num, dim = samples.shape
-    num_blocks, size = search_blocks(num, dim)
-    bits = max(1, (num_blocks * size - 1).bit_length())  # padded samples' indices too
-    best = _min_over_segments(points, samples, tangents, bits)
-    return jnp.minimum(best & ((1 << bits) - 1), num - 1)
+    return _search(points, samples, tangents)[0]
+
+
+def search_starts(points: jax.Array, samples: jax.Array, tangents: jax.Array) -> jax.Array:
+    """Where each point's Newton steps start, in samples: (N,) float, ``m + 1/2`` for
+    sample ``m``'s centre (its tangent segment runs from ``m`` to ``m + 1``).
+
+    Where :func:`starts_on_segment`, the point's foot on its nearest tangent segment,
+    ``m + (1 + s) / 2``: the Gauss-Newton step from the sample (the tangents are the
+    curve's derivative scaled to half the sample spacing), which the search has computed
+    anyway, so Newton takes one step fewer (:data:`NEWTON_STEPS`).  Measured on W1 (warm,
+    interleaved in one process): 3.11 against 3.20 s; the search alone 11-15 % more CPU
+    time for the foot's select and the slopes' loads.
+    """
+    j, s = _search(points, samples, tangents)
+    start = j.astype(points.dtype) + 0.5
+    return start if s is None else start + 0.5 * s
 
 
 def polyline_distances(points: jax.Array, samples: jax.Array, tangents: jax.Array) -> jax.Array:
@@ -276,19 +317,19 @@ def polyline_distances(points: jax.Array, samples: jax.Array, tangents: jax.Arra
     return jnp.sqrt(_min_over_segments(points, samples, tangents, 0) + 1e-30)
 
 
-def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
+def _min_over_segments(points, samples, tangents, bits: int):
     """The smallest squared point-to-segment distance (N,) over the segments; with
     ``bits`` > 0, int32 whose low ``bits`` hold the nearest segment's index, and the
-    distance's bits above them (zeros where 2D segments fit one block: there the index
-    is carried by a select, :func:`nearest_sample`).
+    distance's bits above them; or, where :func:`starts_on_segment` (``bits`` > 0), that
+    index and the point's foot ``s`` on the segment, (N,) each, carried by selects beside
+    the distance (:func:`nearest_sample`).
 
     The minimum of the tagged bits is taken as integers: non-negative floats order as
     their bits do, and no denormal is flushed (a float 0 tagged would be one)."""
     num, dim = samples.shape
     num_blocks, size = search_blocks(num, dim)
     keep = jnp.int32(~((1 << bits) - 1))  # the distance's bits above the tag
-    carry = bits > 0 and dim == 2 and num_blocks == 1  # the index by a select (nearest_sample)
-    half, unit = _unit_tangents(tangents)
+    carry = bits > 0 and starts_on_segment(num, dim)
     coords = [points[:, i] for i in range(dim)]
 
     def block_min(acc, blk):
@@ -297,23 +338,32 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
         # about 0.2 ms per operation, and the indexing was two thirds of the search's
         # operations.  (Offsets made for the whole block at once, (size, N), were
         # materialised: 3x slower.)
-        first, block, u, h = blk
+        first, block, tangent, slope = blk
         shape = (block.shape[0], points.shape[0])
         rows = lambda a: jnp.unstack(jnp.broadcast_to(a[:, None], shape))  # noqa: E731
-        sample, unit = [rows(block[:, i]) for i in range(dim)], [rows(u[:, i]) for i in range(dim)]
-        hi = rows(h)
-        if carry:  # the indices as values (plus a zero XLA cannot fold: NaN only if h is),
-            # read in the loop like the samples, not a constant broadcast for each sample
-            # (measured: W1 1.6 % faster)
-            index = rows(jnp.arange(shape[0], dtype=jnp.int32) + (h[0] != h[0]).astype(jnp.int32))
+        sample = [rows(block[:, i]) for i in range(dim)]
+        tangent, slope = (
+            [rows(tangent[:, i]) for i in range(dim)],
+            [rows(slope[:, i]) for i in range(dim)],
+        )
+        if carry:  # the indices as values (plus a zero XLA cannot fold: NaN only if the
+            # curve is), read in the loop like the samples, not a constant broadcast for
+            # each sample (measured: W1 1.6 % faster)
+            nan = (block[0, 0] != block[0, 0]).astype(jnp.int32)
+            index = rows(jnp.arange(shape[0], dtype=jnp.int32) + nan)
         for m in range(shape[0]):
             diff = [p - c[m] for p, c in zip(coords, sample)]
-            d2 = _segment_d2(diff, [e[m] for e in unit], -hi[m], hi[m])
-            if carry:  # (distance, index), the first of equal distances kept
+            d2, s = _segment_d2(diff, [e[m] for e in slope], [e[m] for e in tangent])
+            if carry:  # (distance, index, foot), the first of equal distances kept
                 if acc is None:
-                    acc = d2, jnp.zeros(d2.shape, jnp.int32)
+                    acc = d2, jnp.zeros(d2.shape, jnp.int32), s
                 else:
-                    acc = jnp.minimum(acc[0], d2), jnp.where(d2 < acc[0], index[m], acc[1])
+                    nearer = d2 < acc[0]
+                    acc = (
+                        jnp.minimum(acc[0], d2),
+                        jnp.where(nearer, index[m], acc[1]),
+                        jnp.where(nearer, s, acc[2]),
+                    )
                 continue
             if bits:  # in float32, whatever the points' precision: the tag is int32
                 d2 = jax.lax.bitcast_convert_type(d2.astype(jnp.float32), jnp.int32)
@@ -321,15 +371,16 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
             acc = d2 if acc is None else jnp.minimum(acc, d2)
         return acc
 
+    slopes = _slopes(tangents)
     if num_blocks == 1:
-        best = block_min(None, (jnp.int32(0), samples, unit, half))
-        return best[1] if carry else best
+        best = block_min(None, (jnp.int32(0), samples, tangents, slopes))
+        return best[1:] if carry else best
     pad = num_blocks * size - num
     blocks = [
         jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]).reshape(
             num_blocks, size, *a.shape[1:]
         )
-        for a in (samples, unit, half)
+        for a in (samples, tangents, slopes)
     ]
     firsts = jnp.arange(num_blocks, dtype=jnp.int32) * size
     if bits:
@@ -340,29 +391,39 @@ def _min_over_segments(points, samples, tangents, bits: int) -> jax.Array:
     return best
 
 
-def _segment_d2(diff: list, unit: list, lo: jax.Array, hi: jax.Array) -> jax.Array:
-    """Squared distance (N,) from points to the segment ``sample + s * unit``,
-    ``lo <= s <= hi``, given the points' offsets ``diff`` from the sample and ``unit``, as
-    D arrays (N,) each: from the offset to its foot, so that no cancellation loses a point
-    near the segment (unlike ``|d|**2 - along**2``)."""
-    along = diff[0] * unit[0]
-    for d, e in zip(diff[1:], unit[1:]):
-        along = along + d * e
-    along = jnp.minimum(hi, jnp.maximum(lo, along))  # jnp.clip's order
-    d2 = jnp.square(diff[0] - along * unit[0])
-    for d, e in zip(diff[1:], unit[1:]):
-        d2 = d2 + jnp.square(d - along * e)
-    return d2
+def _segment_d2(diff: list, slope: list, tangent: list) -> tuple[jax.Array, jax.Array]:
+    """Squared distance (N,) from points to the segment ``sample + s * tangent``,
+    ``|s| <= 1``, and the foot's ``s`` (N,), given the points' offsets ``diff`` from the
+    sample, the segment's ``slope`` (:func:`_slopes`) and ``tangent``, as D arrays (N,)
+    each: from the offset to its foot, so that no cancellation loses a point near the
+    segment (unlike ``|d|**2 - along**2``)."""
+    s = diff[0] * slope[0]
+    for d, e in zip(diff[1:], slope[1:]):
+        s = s + d * e
+    s = jnp.minimum(1.0, jnp.maximum(-1.0, s))  # jnp.clip's order
+    d2 = jnp.square(diff[0] - s * tangent[0])
+    for d, e in zip(diff[1:], tangent[1:]):
+        d2 = d2 + jnp.square(d - s * e)
+    return d2, s
 
 
-def _unit_tangents(tangents: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Each tangent segment's half length (M,) and unit direction (M, D); a segment of
-    length 0 gets the first axis, so that its distance is the point's own."""
-    half = jnp.sqrt(jnp.sum(tangents**2, axis=1))
-    flat = half == 0
-    axis = jnp.eye(1, tangents.shape[1], dtype=tangents.dtype)
-    unit = tangents / jnp.where(flat, 1.0, half)[:, None]
-    return half, jnp.where(flat[:, None], axis, unit)
+def _slopes(tangents: jax.Array) -> jax.Array:
+    """Each tangent segment's ``tangent / |tangent|**2`` (M, D), which maps a point's
+    offset to its foot's ``s``; zero for a segment of length 0, whose distance is then the
+    point's own to the sample."""
+    len2 = jnp.sum(tangents**2, axis=1, keepdims=True)
+    return tangents / jnp.where(len2 > 0, len2, 1.0)
+
+
+def _search_dense(points, samples, tangents) -> tuple[jax.Array, jax.Array]:
+    """:func:`_search` as a plain (N, M) ``argmin``, the foot's ``s`` always given."""
+    diff = points[:, None, :] - samples[None, :, :]
+    along = jnp.sum(diff * tangents[None], axis=2)
+    len2 = jnp.sum(tangents**2, axis=1)[None, :]
+    s = jnp.clip(along / jnp.maximum(len2, 1e-30), -1.0, 1.0)
+    d2 = jnp.sum(diff**2, axis=2) - s * (2.0 * along - s * len2)
+    j = jnp.argmin(d2, axis=1).astype(jnp.int32)
+    return j, jnp.take_along_axis(s, j[:, None], axis=1)[:, 0]
 
 
 def nearest_sample_dense(points: jax.Array, samples: jax.Array, tangents: jax.Array) -> jax.Array:
@@ -370,12 +431,7 @@ def nearest_sample_dense(points: jax.Array, samples: jax.Array, tangents: jax.Ar
     about ten times quicker to compile, for code that searches only a few dozen times.
     Its own broadcast formula: :func:`_segment_d2` vmapped over the samples ranked the
     same but made W1's refinement 2.5x slower (0.54 against 0.22 s, measured)."""
-    diff = points[:, None, :] - samples[None, :, :]
-    along = jnp.sum(diff * tangents[None], axis=2)
-    len2 = jnp.sum(tangents**2, axis=1)[None, :]
-    s = jnp.clip(along / jnp.maximum(len2, 1e-30), -1.0, 1.0)
-    d2 = jnp.sum(diff**2, axis=2) - s * (2.0 * along - s * len2)
-    return jnp.argmin(d2, axis=1).astype(jnp.int32)
+    return _search_dense(points, samples, tangents)[0]
 
 
 def foot_samples(
@@ -385,44 +441,50 @@ def foot_samples(
     points: jax.Array,
     dense: bool = True,
 ) -> jax.Array:
-    """Index of the sample each point's Newton search starts from: (N,) int32.
+    """Where each point's Newton steps start (:func:`search_starts`): (N,) float.
 
-    Piecewise constant in the curve, so it has no derivative: a caller that differentiates
-    :func:`point_distances` computes it once and passes it, keeping the search out of the
-    differentiated graph; the swarm reuses it for a few iterations.  ``dense``: with
-    :func:`nearest_sample_dense` (quick to compile), else :func:`nearest_sample` (quick
-    to run).
+    Piecewise constant in the curve, so it is not differentiated: a caller that
+    differentiates :func:`point_distances` computes it once and passes it, keeping the
+    search out of the differentiated graph; the swarm reuses it for a few iterations.
+    ``dense``: with :func:`nearest_sample_dense` (quick to compile; always the foot on the
+    segment), else :func:`nearest_sample` (quick to run).
     """
-    search = nearest_sample_dense if dense else nearest_sample
-    return search(points, *curve_samples(ctrl, weights, basis))
+    if not dense:
+        return search_starts(points, *curve_samples(ctrl, weights, basis))
+    j, s = _search_dense(points, *curve_samples(ctrl, weights, basis))
+    return j.astype(points.dtype) + 0.5 + 0.5 * s
 
 
-def _span_and_start(j: jax.Array, basis: SpanBasis, dtype, barrier: bool = True):
-    """Each point's span (int32) and start parameter ``tau`` from its sample index.
+def _span_and_start(start: jax.Array, basis: SpanBasis, dtype, barrier: bool = True):
+    """Each point's span (int32) and start parameter ``tau`` in it, from its search start
+    ``u`` (:func:`search_starts`, in samples).
 
     ``barrier``: ``sqrt`` first.  XLA:CPU's fusion copies cheap elementwise producers into
     every consumer, so where the search is fused into the same loop, unless an op XLA
-    counts as expensive stands between them, every later use of ``j`` recomputes the whole
-    search.  ``floor(sqrt(j*j + 1/4))`` is ``j`` exactly for any index below 4096
-    (:data:`~swarmcurves_jax.fit.MAX_SAMPLES`).  Measured without it: the fitness 5x slower
-    at W1's shapes under JAX's default compiler options (``optimization_barrier`` does not
-    help), a 2D rational swarm 5x slower under ``fit``'s.  Where ``j`` is stored (a
-    branch's result, an input) nothing can be recomputed, and the sqrt only lengthens each
-    point's chain of dependent operations (W1 4 % slower with it).
+    counts as expensive stands between them, every later use of ``u`` recomputes the whole
+    search.  ``sqrt(max(u*u, 0))`` is ``u`` exactly (the square root of a correctly
+    rounded square is exact in binary floating point; checked for every float32 from 1e-18
+    to 8192), and XLA keeps it (it folds ``sqrt(u*u)`` to ``abs``).  Measured without it:
+    the fitness 5x slower at W1's shapes under JAX's default compiler options
+    (``optimization_barrier`` does not help), a 2D rational swarm 5x slower under ``fit``'s.
+    Where ``u`` is stored (a branch's result, an input) nothing can be recomputed, and the
+    sqrt only lengthens each point's chain of dependent operations (W1 4 % slower with it).
 
-    The span is ``floor((j + 1/2) * (1/per))`` in floats, exact below 4096 (checked for
-    every ``per`` in float32): XLA:CPU does not vectorise an integer division by a traced
-    ``per`` (it took a quarter of W1's fitness: 5.0 against 3.7 CPU ms per iteration).
-    Times the reciprocal, not ``/ per``: XLA rewrites ``x / c`` as ``x * (1/c)`` in some
-    programs and not in others, and the sharded and the lone fit would differ.
+    The span is sample ``floor(u)``'s, ``floor((floor(u) + 1/2) * (1/per))`` in floats,
+    exact below 4096 (checked for every ``per`` in float32): XLA:CPU does not vectorise an
+    integer division by a traced ``per`` (it took a quarter of W1's fitness: 5.0 against
+    3.7 CPU ms per iteration).  Times the reciprocal, not ``/ per``: XLA rewrites
+    ``x / c`` as ``x * (1/c)`` in some programs and not in others, and the sharded and the
+    lone fit would differ.  A start at a segment's far end (``u = m + 1``) lies in the
+    next sample's span if that begins there: the same point of the curve.
     """
-    jf = j.astype(dtype)
+    u = start.astype(dtype)
     if barrier:
-        jf = jnp.floor(jnp.sqrt(jf * jf + 0.25))
+        u = jnp.sqrt(jnp.maximum(u * u, 0.0))
     per = basis.per_span.astype(dtype)
     inv = 1.0 / per
-    span = jnp.minimum(jnp.floor((jf + 0.5) * inv), (basis.num_spans - 1).astype(dtype))
-    tau = jnp.clip((jf - span * per + 0.5) * inv, 0.5 * inv, 1.0 - 0.5 * inv)
+    span = jnp.minimum(jnp.floor((jnp.floor(u) + 0.5) * inv), (basis.num_spans - 1).astype(dtype))
+    tau = jnp.clip((u - span * per) * inv, 0.0, 1.0)
     return span.astype(jnp.int32), tau
 
 
@@ -454,26 +516,31 @@ def point_distances(
     *,
     barrier: bool = True,
     uniform: bool = False,
+    stale: bool = False,
 ) -> jax.Array:
     """Distance from every point (N, D) to a point of the curve near its foot: shape (N,);
     differentiable in the control points, weights and (free) knots (used by
-    :mod:`swarmcurves_jax.refine`).  ``foot``: the search's result
+    :mod:`swarmcurves_jax.refine`).  ``foot``: where Newton starts, the search's result
     (:func:`foot_samples`), if already known.  ``degree``: the curve's degree if static
     (cheaper: a polygon's search is its exact distance, :func:`polyline_distances`,
     unless ``foot`` is given), else read from ``basis.degree``.  ``barrier``: keep a search
-    fused into the same loop from being recomputed per reader of its index; False only
+    fused into the same loop from being recomputed per reader of its result; False only
     where ``foot`` is stored, not computed in that loop (:func:`_span_and_start`).  The
     same values either way.  ``uniform``: ``basis`` is on uniform knots
     (:func:`make_span_basis`), where a span's bounds are the first span's, the last's or
     (every middle span) the same as both neighbours', so two selects find them, not the
     chain over the spans (2 (spans - 1) selects fewer per point); the same values.
+    ``stale``: ``foot`` may be an earlier curve's (``fit``'s ``search_every`` > 1), so
+    Newton takes all :data:`NEWTON_STEPS` even from the segment's foot (measured: with two,
+    a cubic reusing its search every 8th iteration ended 13 % worse than searching each
+    time, ``tests/test_fit.py``).
     """
     if degree == 1 and weights is None and foot is None:  # a polygon: exact at once
         return polyline_distances(points, *curve_samples(ctrl, None, basis))
     dim = points.shape[1]
     hom = _homogeneous(ctrl, weights)
-    j = nearest_sample(points, *curve_samples(ctrl, weights, basis)) if foot is None else foot
-    span, tau = _span_and_start(j, basis, points.dtype, barrier)
+    u = search_starts(points, *curve_samples(ctrl, weights, basis)) if foot is None else foot
+    span, tau = _span_and_start(u, basis, points.dtype, barrier)
     coef = jnp.einsum("srn,nc->src", basis.table, hom, precision=PRECISION)  # (S, K+3, cols)
     num_spans, rows, cols = coef.shape
     # Each point's span rows by a chain of selects (no gather): (rows, cols) arrays (N,)
@@ -534,8 +601,10 @@ def point_distances(
         c2 = [(d2[i] - 2.0 * c1[i] * dw - c0[i] * ddw) / w for i in range(dim)]
         return c0, c1, c2
 
+    on_segment = starts_on_segment(basis.sample_value.shape[-2], dim)
+    steps = NEWTON_STEPS - (on_segment and not stale)
     start = None
-    for _ in range(1 if degree == 1 and weights is None else NEWTON_STEPS):  # a line: exact
+    for _ in range(1 if degree == 1 and weights is None else steps):  # a line: exact
         c0, c1, c2 = curve(tau, inside_span=start is None)
         q = [c0[i] - points[:, i] for i in range(dim)]
         start = q if start is None else start

@@ -20,7 +20,6 @@ from .knots import breakpoints
 __all__ = ["curve_derivatives", "project_points", "dense_parameters"]
 
 _NEWTON_STEPS = 30
-_CHUNK = 64  # points per block of the chord search, scaled by 1024 / chords
 
 
 def curve_derivatives(u, ctrl, weights, t, k, closed, max_nu=2):
@@ -61,38 +60,39 @@ def _nearest_chords(points, samples, top=3, near=32):
 
     A chord within ``r`` of a point has an end within ``r + L/2`` (``L``: the longest
     chord), so the chords at the ``near`` nearest samples (a k-d tree) hold the answer
-    whenever the farthest of those samples lies beyond that; the rare other points are
-    searched over every chord.  Exact either way, and about 10x quicker than searching
-    every chord for every point (measured on W1's solutions).
+    whenever the farthest of those samples lies beyond that; the rare other points ask
+    again for 8 times as many samples, up to every sample (every chord).  Exact either
+    way, and about 10x quicker than searching every chord for every point (measured on
+    W1's solutions; asking again rather than searching every chord at once: W1's 21
+    projections 0.157 -> 0.13 s serial).
     """
     a, b = samples[:-1], samples[1:]
     ab = b - a
     len2 = np.sum(ab**2, axis=1)
     inv = 1.0 / np.maximum(len2, 1e-300)
     out = np.empty((len(points), top), dtype=np.int64)
-    near = min(near, len(samples))
     tree = cKDTree(samples)
     half = 0.5 * np.sqrt(np.max(len2))
-    unsure = []
-    for lo in range(0, len(points), 8192):  # bounded temporaries for huge scans
-        p = points[lo : lo + 8192]
-        dist, vert = (x.reshape(len(p), -1) for x in tree.query(p, k=near))
-        cand = np.sort(np.clip(np.concatenate([vert - 1, vert], axis=1), 0, len(a) - 1), axis=1)
-        d2 = _chord_d2(p, a, ab, inv, cand)
-        d2[:, 1:][cand[:, 1:] == cand[:, :-1]] = np.inf  # each chord once
-        pick = np.argpartition(d2, top - 1, axis=1)[:, :top]
-        rows = np.arange(len(p))[:, None]
-        out[lo : lo + len(p)] = cand[rows, pick]
-        if near < len(samples):
-            reach = np.sqrt(d2[rows, pick].max(axis=1)) + half
-            unsure.extend(lo + np.flatnonzero(dist[:, -1] <= reach))
-    unsure = np.asarray(unsure, dtype=np.int64)
-    chunk = max(1, _CHUNK * 1024 // max(len(a), 1))
-    every = np.arange(len(a))
-    for lo in range(0, len(unsure), chunk):
-        rows = unsure[lo : lo + chunk]
-        d2 = _chord_d2(points[rows], a, ab, inv, np.broadcast_to(every, (len(rows), len(a))))
-        out[rows] = np.argpartition(d2, top - 1, axis=1)[:, :top]
+    rows = np.arange(len(points))
+    while len(rows):
+        near = min(near, len(samples))
+        unsure = []
+        chunk = max(1, 8192 * 32 // near)  # bounded temporaries for huge scans
+        for lo in range(0, len(rows), chunk):
+            at = rows[lo : lo + chunk]
+            p = points[at]
+            dist, vert = (x.reshape(len(p), -1) for x in tree.query(p, k=near))
+            cand = np.sort(np.clip(np.concatenate([vert - 1, vert], axis=1), 0, len(a) - 1), axis=1)
+            d2 = _chord_d2(p, a, ab, inv, cand)
+            d2[:, 1:][cand[:, 1:] == cand[:, :-1]] = np.inf  # each chord once
+            pick = np.argpartition(d2, top - 1, axis=1)[:, :top]
+            within = np.arange(len(p))[:, None]
+            out[at] = cand[within, pick]
+            if near < len(samples):
+                reach = np.sqrt(d2[within, pick].max(axis=1)) + half
+                unsure.append(at[dist[:, -1] <= reach])
+        rows = np.concatenate(unsure) if unsure else rows[:0]
+        near *= 8
     return out
 
 
@@ -125,6 +125,7 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
     p = np.repeat(points[:, None, :], cand.shape[1], axis=1).reshape(-1, points.shape[1])
     lo, hi = lo.ravel(), hi.ravel()
     u = 0.5 * (lo + hi)
+    last = u
     for _ in range(_NEWTON_STEPS):
         c0, c1, c2 = curve_derivatives(u, ctrl, weights, t, k, closed)
         r = c0 - p
@@ -132,10 +133,13 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
         h = np.sum(c1 * c1, axis=1) + np.sum(c2 * r, axis=1)
         step = np.where(h > 0, -g / np.where(h > 0, h, 1.0), np.where(g > 0, -np.inf, np.inf))
         u_new = np.clip(u + step, lo, hi)
-        if np.all(np.abs(u_new - u) <= 1e-15):
+        # Converged, or back where it was two steps ago: an interval ending at a corner
+        # (a polygon's, a knot of a C0 curve) is evaluated there on the next span, whose
+        # derivative sends it back to the interval's start; both ends are candidates below.
+        if np.all((np.abs(u_new - u) <= 1e-15) | (u_new == last)):
             u = u_new
             break
-        u = u_new
+        last, u = u, u_new
     cands = np.stack([u, lo, hi], axis=1)
     pts = np.repeat(p, 3, axis=0)
     c = curve_derivatives(cands.ravel(), ctrl, weights, t, k, closed, max_nu=0)[0]

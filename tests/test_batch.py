@@ -184,17 +184,26 @@ def test_fit_split_over_cpu_devices_matches_one_program():
     """With several CPU devices fit deals its swarms over them, one program each, and
     refines in one program: every solution, history, stop and callback equals one
     device's (in the tol case one part stops a chunk before the other)."""
-    from swarmcurves_jax.fit import _split_swarms
+    from swarmcurves_jax.fit import _split_swarms, _swarm_costs
 
-    # whole degrees first (degree 2's 66 to one, degree 3's 66 to the other, the polygons'
-    # 24 to the first: a polygon costs its samples, a spline 10 more), then one polygon
-    # over: 82 against 74
+    # a polygon costs 1.25 a segment, a spline its samples + 5 + spans (k + 3) D / 5:
+    # W1's polygons 11.25, quadratics 32 + 5 + 16 = 53, cubics 28 + 5 + 16.8 = 49.8
+    w1 = [(k, n) for k in (1, 2, 3) for n in range(4, 11)]
+    groups = ((1, 0, 7, 9), (2, 7, 14, 32), (3, 14, 21, 28))
+    cost = _swarm_costs(w1, groups, False, 2)
+    np.testing.assert_allclose(cost[[0, 7, 14]], [11.25, 53.0, 49.8])
+    # whole degrees first (the quadratics' 371 to one, the cubics' 348.6 and the polygons'
+    # 78.75 to the other), then polygons over while the other stays below: 5 % below to
+    # start a group there, then freely (404.75 against 393.6)
+    split = [s.tolist() for s in _split_swarms(groups, 2, cost)]
+    assert split == [[0, 1, 2, *range(7, 14)], [3, 4, 5, 6, *range(14, 21)]]
+    # one swarm a device, but two polygons cost less than one spline swarm
     groups = ((1, 0, 3, 8), (2, 3, 6, 12), (3, 6, 9, 12))
-    assert [s.tolist() for s in _split_swarms(groups, 2)] == [[1, 2, 3, 4, 5], [0, 6, 7, 8]]
-    # one swarm a device, but two polygons (16) cost less than one spline swarm (22)
+    cost = np.r_[np.full(3, 8.0), np.full(6, 22.0)]
     expected = [[0], [1, 2], *([i] for i in range(3, 9))]
-    assert sorted(s.tolist() for s in _split_swarms(groups, 20)) == expected
-    assert [s.tolist() for s in _split_swarms(((3, 0, 7, 28),), 2)] == [[3, 4, 5, 6], [0, 1, 2]]
+    assert sorted(s.tolist() for s in _split_swarms(groups, 20, cost)) == expected
+    split = _split_swarms(((3, 0, 7, 28),), 2, np.full(7, 38.0))
+    assert [s.tolist() for s in split] == [[3, 4, 5, 6], [0, 1, 2]]
     code = """
         import json, jax
         jax.config.update("jax_num_cpu_devices", 2)

@@ -203,17 +203,26 @@ def test_every_matrix_product_asks_for_float32():
     ],
 )
 def test_span_and_start_recover_every_sample_index(n, k, closed, num):
-    """Exact under jit too, where the span is a float floor (XLA may rewrite its division)."""
+    """Exact under jit too, where the span is a float floor (XLA may rewrite its division):
+    a sample's centre ``m + 1/2`` gives its span and parameter, its segment's ends ``m``
+    and ``m + 1`` the same point of the curve (in the next span where one begins there)."""
     basis = as_jax(make_span_basis(n, k, closed, num))
     per, spans = int(basis.per_span), int(basis.num_spans)
-    j = jnp.arange(num, dtype=jnp.int32)
-    span, tau = jax.jit(_span_and_start, static_argnums=2)(j, basis, jnp.float32)
-    want = np.minimum(np.arange(num) // per, spans - 1)
+    at = jax.jit(_span_and_start, static_argnums=(2, 3))
+    m = np.arange(num)
+    span, tau = at(jnp.asarray(m + 0.5, jnp.float32), basis, jnp.float32, True)
+    want = np.minimum(m // per, spans - 1)
     np.testing.assert_array_equal(np.asarray(span), want)
-    within = np.arange(num) - want * per
+    within = m - want * per  # past the last span (padding, never nearest): its end
     np.testing.assert_allclose(
-        np.asarray(tau), (np.minimum(within, per - 1) + 0.5) / per, rtol=1e-6
+        np.asarray(tau), np.where(within < per, (within + 0.5) / per, 1.0), rtol=1e-6
     )
+    real = np.arange(spans * per + 1, dtype=np.float32)  # every segment end on the curve
+    for barrier in (True, False):
+        span, tau = at(jnp.asarray(real), basis, jnp.float32, barrier)
+        span, tau = np.asarray(span), np.asarray(tau)
+        assert np.all((tau >= 0) & (tau <= 1)) and np.all((span >= 0) & (span < spans))
+        np.testing.assert_allclose(span + tau, real / per, rtol=1e-6, atol=1e-6)
 
 
 def _random_curve(n, k, closed, seed, rational=False):

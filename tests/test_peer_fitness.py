@@ -32,12 +32,13 @@ def _particles(points, k, n, rng, count=16):
     return np.concatenate([near, wild]).reshape(2 * count, 20).astype(np.float32)
 
 
-@pytest.mark.parametrize("swarm", [0, 3, 6])  # n = 4, 7, 10 of each degree
-def test_peers_compute_fits_fitness(speed, swarm):
+@pytest.mark.parametrize("where", [0.0, 0.5, 1.0])  # the first, middle and last of a group
+def test_peers_compute_fits_fitness(speed, where):
     points, groups, bases = speed.w1_problem()
-    rng = np.random.default_rng(swarm)
+    rng = np.random.default_rng(int(10 * where))
     data = jnp.asarray(points)
-    for (k, i, _, _), basis in zip(groups, bases):
+    for (k, i, j, _), basis in zip(groups, bases):
+        swarm = round(where * (j - i - 1))
         n = speed.W1_PAIRS[i + swarm][1]
         one = jax.tree_util.tree_map(lambda a: np.asarray(a)[swarm], basis)
         on_device = jax.tree_util.tree_map(jnp.asarray, one)

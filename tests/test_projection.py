@@ -6,7 +6,13 @@ from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 
 from swarmcurves_jax import make_knots
-from swarmcurves_jax.projection import curve_derivatives, project_points
+from swarmcurves_jax.projection import (
+    _chord_d2,
+    _nearest_chords,
+    curve_derivatives,
+    dense_parameters,
+    project_points,
+)
 
 
 def brute_force(points, ctrl, w, t, k, closed):
@@ -38,6 +44,37 @@ def test_projection_matches_brute_force(k, closed, rational, seed):
     np.testing.assert_allclose(dist, brute_force(pts, ctrl, w, t, k, closed), atol=1e-7)
     foot = curve_derivatives(u, ctrl, w, t, k, closed, max_nu=0)[0]
     np.testing.assert_allclose(np.linalg.norm(foot - pts, axis=1), dist, atol=1e-12)
+
+
+@given(st.integers(0, 10_000), st.sampled_from([1.2, 5.0, 50.0]))
+def test_nearest_chords_are_those_of_every_chord(seed, spread):
+    """The k-d tree's chords, asked again with more samples where unsure (far points: all
+    32 nearest samples on one side), are the three a search of every chord ranks first."""
+    rng = np.random.default_rng(seed)
+    ctrl = rng.uniform(-1, 1, (7, 2))
+    t = make_knots(7, 3, False)
+    samples = curve_derivatives(dense_parameters(t, 100), ctrl, np.ones(7), t, 3, False, 0)[0]
+    pts = rng.uniform(-spread, spread, (200, 2))
+    _assert_top_chords(pts, samples)
+
+
+def test_nearest_chords_reach_a_long_chord_past_dense_samples():
+    """A point whose 32 nearest samples lie in a dense cluster while a long chord passes
+    nearer: the first answer is unsure and the chord is found when asked again."""
+    cluster = np.c_[1.0 + 1e-3 * np.arange(100), np.zeros(100)]
+    samples = np.r_[cluster, [[-5.0, 0.5], [5.0, 0.5]]]
+    pts = np.array([[0.0, 0.4], [0.3, 0.45], [1.05, 0.01]])
+    _assert_top_chords(pts, samples)
+    assert _nearest_chords(pts, samples)[0].tolist().count(100) == 1  # the long chord
+
+
+def _assert_top_chords(pts, samples):
+    got = _nearest_chords(pts, samples)
+    a, ab = samples[:-1], np.diff(samples, axis=0)
+    inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
+    every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
+    picked = np.sort(np.take_along_axis(every, got, axis=1), axis=1)
+    np.testing.assert_array_equal(picked, np.sort(every, axis=1)[:, :3])
 
 
 def test_polygon_distance_is_point_to_segment():
