@@ -523,13 +523,17 @@ def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20, t=None
     of 12 (``benchmarks/recovery_rates.py``).  With ``ends`` the first and last control
     points are fixed.  ``t``: the knot vector (default: the uniform one).
     """
-    t = make_knots(n, k, closed) if t is None else t
+    if t is None:
+        t, dense = make_knots(n, k, closed), _uniform_grid_design(n, k, closed)
+    else:
+        dense = design_matrix(_seed_grid(closed), t, k, closed=closed)
     ctrl = _lsq(design_matrix(chord_parameters(points, closed), t, k, closed=closed), points, ends)
-    grid = np.linspace(0.0, 1.0, 2048, endpoint=not closed)
-    dense = design_matrix(grid, t, k, closed=closed)
     best, best_err, last = ctrl, np.inf, None
     for _ in range(rounds + 1):
-        dist, j = cKDTree(dense @ ctrl).query(points)  # each point's nearest grid sample
+        # each point's nearest grid sample (exact whatever the tree's shape; an unbalanced,
+        # uncompacted tree builds 18 % faster here)
+        tree = cKDTree(dense @ ctrl, balanced_tree=False, compact_nodes=False)
+        dist, j = tree.query(points)
         err = np.mean(dist)
         if err < best_err:  # a correction can also fold the parameters: keep the best
             best, best_err = ctrl, err
@@ -537,6 +541,20 @@ def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20, t=None
             break  # a fixed point: every later round would give this same curve again
         ctrl, last = _lsq(dense[j], points, ends), j
     return best
+
+
+def _seed_grid(closed: bool) -> np.ndarray:
+    """The 2048 parameters whose curve points the seeds' correction searches."""
+    return np.linspace(0.0, 1.0, 2048, endpoint=not closed)
+
+
+@functools.lru_cache(maxsize=64)
+def _uniform_grid_design(n: int, k: int, closed: bool) -> np.ndarray:
+    """:func:`_seed_grid`'s design matrix on the uniform knots (read-only): the same for
+    every call of a shape, so made once (W1's 21 swarms: 9 ms a call)."""
+    dense = design_matrix(_seed_grid(closed), make_knots(n, k, closed), k, closed=closed)
+    dense.setflags(write=False)
+    return dense
 
 
 def _host_map(fn, items) -> list:

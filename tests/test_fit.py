@@ -40,6 +40,22 @@ def test_recovers_random_cubic(seed, n, closed, dim, cps):
         np.testing.assert_allclose(samples[0], pts[0], atol=1e-9)
 
 
+def test_seed_grid_design_is_made_once_and_read_only():
+    """The seeds' grid design matrix on uniform knots is a constant of (n, k, closed),
+    shared by every call: read-only, so no caller can change another's."""
+    from swarmcurves_jax import make_knots
+    from swarmcurves_jax.basis import design_matrix
+
+    grid_design = importlib.import_module("swarmcurves_jax.fit")._uniform_grid_design
+    dense = grid_design(7, 3, True)
+    assert grid_design(7, 3, True) is dense
+    grid = np.linspace(0.0, 1.0, 2048, endpoint=False)
+    want = design_matrix(grid, make_knots(7, 3, True), 3, closed=True)
+    np.testing.assert_array_equal(dense, want)
+    with pytest.raises(ValueError, match="read-only"):
+        dense[0, 0] = 1.0
+
+
 def test_polygon_finds_the_corners_of_a_square():
     corners = np.array([[0, 0], [2, 0], [2, 2], [0, 2], [0, 0]], float)
     t = np.linspace(0, 1, 201)
