@@ -21,6 +21,8 @@ from swarmcurves_jax.fitness import (
     point_distances,
     polyline_distances,
     search_blocks,
+    search_starts,
+    starts_on_segment,
 )
 from swarmcurves_jax.knots import breakpoints
 from swarmcurves_jax.projection import project_points
@@ -45,6 +47,8 @@ def as_jax(basis):
     st.sampled_from([2, 3]),
 )
 def test_nearest_sample_is_argmin_of_segment_distance(seed, num, dim):
+    """The nearest tangent segment; and Newton's start: in 2D within one unrolled block
+    the point's foot on that segment (``j + (1 + s) / 2``), elsewhere its centre."""
     rng = np.random.default_rng(seed)
     pts = rng.uniform(-1, 1, (40, dim)).astype(np.float32)
     s = rng.uniform(-1, 1, (num, dim)).astype(np.float32)
@@ -59,6 +63,11 @@ def test_nearest_sample_is_argmin_of_segment_distance(seed, num, dim):
     d2 = np.sum((diff - sc[..., None] * tang[None]) ** 2, -1)
     # the packed search may break near-ties differently: compare distances, not indices
     np.testing.assert_allclose(d2[np.arange(len(pts)), j], d2.min(axis=1), rtol=1e-4, atol=1e-12)
+    start = np.asarray(search_starts(jnp.asarray(pts), jnp.asarray(s), jnp.asarray(tang)))
+    if starts_on_segment(num, dim):
+        np.testing.assert_allclose(start, j + 0.5 + 0.5 * sc[np.arange(len(pts)), j], atol=2e-5)
+    else:
+        np.testing.assert_array_equal(start, j + 0.5)
 
 
 def _segment_distances(pts, a, b):
