@@ -110,13 +110,18 @@ def design_matrix(
     return _fold(basis_functions(u, t, k, nu, find_span(u, t, k)), k, closed)
 
 
-def design_matrices(u: np.ndarray, t: np.ndarray, k: int, max_nu: int, *, closed=False) -> list:
+def design_matrices(
+    u: np.ndarray, t: np.ndarray, k: int, max_nu: int, *, closed=False, span=None
+) -> list:
     """``[design_matrix(u, t, k, nu=nu, closed=closed) for nu in range(max_nu + 1)]``, the
     same numbers from one recursion (:func:`derivative_bases`): a curve's point and
-    derivatives, as the host's projections need them at every Newton step."""
+    derivatives, as the host's projections need them at every Newton step.  ``span``:
+    each parameter's knot span (default :func:`find_span`), to evaluate a span's
+    polynomial at its right end, where ``find_span`` gives the next span."""
     u = np.asarray(u, dtype=np.float64).reshape(-1)
     t = np.asarray(t, dtype=np.float64)
-    return [_fold(b, k, closed) for b in derivative_bases(u, t, k, max_nu, find_span(u, t, k))]
+    span = find_span(u, t, k) if span is None else span
+    return [_fold(b, k, closed) for b in derivative_bases(u, t, k, max_nu, span)]
 
 
 def _fold(basis: np.ndarray, k: int, closed: bool) -> np.ndarray:

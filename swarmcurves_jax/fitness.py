@@ -304,8 +304,12 @@ def search_starts(points: jax.Array, samples: jax.Array, tangents: jax.Array) ->
     interleaved in one process): 3.11 against 3.20 s; the search alone 11-15 % more CPU
     time for the foot's select and the slopes' loads.
     """
-    j, s = _search(points, samples, tangents)
-    start = j.astype(points.dtype) + 0.5
+    return _start(*_search(points, samples, tangents), points.dtype)
+
+
+def _start(j: jax.Array, s: jax.Array | None, dtype) -> jax.Array:
+    """Newton's start in samples from a search's index and foot (None: the centre)."""
+    start = j.astype(dtype) + 0.5
     return start if s is None else start + 0.5 * s
 
 
@@ -451,8 +455,7 @@ def foot_samples(
     """
     if not dense:
         return search_starts(points, *curve_samples(ctrl, weights, basis))
-    j, s = _search_dense(points, *curve_samples(ctrl, weights, basis))
-    return j.astype(points.dtype) + 0.5 + 0.5 * s
+    return _start(*_search_dense(points, *curve_samples(ctrl, weights, basis)), points.dtype)
 
 
 def _span_and_start(start: jax.Array, basis: SpanBasis, dtype, barrier: bool = True):

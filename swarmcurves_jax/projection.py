@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .basis import design_matrices
+from .basis import design_matrices, find_span
 from .knots import breakpoints
 
 __all__ = ["curve_derivatives", "project_points", "dense_parameters"]
@@ -22,11 +22,13 @@ __all__ = ["curve_derivatives", "project_points", "dense_parameters"]
 _NEWTON_STEPS = 30
 
 
-def curve_derivatives(u, ctrl, weights, t, k, closed, max_nu=2):
-    """Curve points and derivatives ``[C, C', ...]`` at ``u`` (rational quotient rule)."""
+def curve_derivatives(u, ctrl, weights, t, k, closed, max_nu=2, span=None):
+    """Curve points and derivatives ``[C, C', ...]`` at ``u`` (rational quotient rule);
+    ``span``: each parameter's knot span, if not the one ``u`` lies in
+    (:func:`~swarmcurves_jax.basis.design_matrices`)."""
     u = np.asarray(u, dtype=np.float64).reshape(-1)
     wp = ctrl * weights[:, None]
-    a = design_matrices(u, t, k, max_nu, closed=closed)
+    a = design_matrices(u, t, k, max_nu, closed=closed, span=span)
     num = [b @ wp for b in a]
     den = [b @ weights for b in a]
     c0 = num[0] / den[0][:, None]
@@ -125,21 +127,21 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
     p = np.repeat(points[:, None, :], cand.shape[1], axis=1).reshape(-1, points.shape[1])
     lo, hi = lo.ravel(), hi.ravel()
     u = 0.5 * (lo + hi)
-    last = u
+    # Every interval lies in one span: Newton runs on that span's polynomial, also at the
+    # interval's right end, a knot, where find_span would give the next span (at a
+    # polygon's corner its derivative sent Newton back and forth for all its steps).
+    span = find_span(lo, t, k)
     for _ in range(_NEWTON_STEPS):
-        c0, c1, c2 = curve_derivatives(u, ctrl, weights, t, k, closed)
+        c0, c1, c2 = curve_derivatives(u, ctrl, weights, t, k, closed, span=span)
         r = c0 - p
         g = np.sum(c1 * r, axis=1)
         h = np.sum(c1 * c1, axis=1) + np.sum(c2 * r, axis=1)
         step = np.where(h > 0, -g / np.where(h > 0, h, 1.0), np.where(g > 0, -np.inf, np.inf))
         u_new = np.clip(u + step, lo, hi)
-        # Converged, or back where it was two steps ago: an interval ending at a corner
-        # (a polygon's, a knot of a C0 curve) is evaluated there on the next span, whose
-        # derivative sends it back to the interval's start; both ends are candidates below.
-        if np.all((np.abs(u_new - u) <= 1e-15) | (u_new == last)):
+        if np.all(np.abs(u_new - u) <= 1e-15):
             u = u_new
             break
-        last, u = u, u_new
+        u = u_new
     cands = np.stack([u, lo, hi], axis=1)
     pts = np.repeat(p, 3, axis=0)
     c = curve_derivatives(cands.ravel(), ctrl, weights, t, k, closed, max_nu=0)[0]

@@ -77,6 +77,20 @@ def _assert_top_chords(pts, samples):
     np.testing.assert_array_equal(picked, np.sort(every, axis=1)[:, :3])
 
 
+def test_a_span_evaluates_its_own_polynomial_at_its_right_end():
+    """At a polygon's corner (a knot) the default span is the next one; given the span
+    before it, the same point and that span's derivative (projected Newton's interval)."""
+    from swarmcurves_jax.basis import find_span
+
+    ctrl, w, t = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]]), np.ones(3), make_knots(3, 1, False)
+    at = curve_derivatives([0.5], ctrl, w, t, 1, False, max_nu=1)
+    before = curve_derivatives([0.5], ctrl, w, t, 1, False, 1, find_span(np.array([0.25]), t, 1))
+    np.testing.assert_allclose(at[0], [[1.0, 0.0]])
+    np.testing.assert_allclose(before[0], [[1.0, 0.0]])
+    np.testing.assert_allclose(at[1], [[0.0, 2.0]])
+    np.testing.assert_allclose(before[1], [[2.0, 0.0]])
+
+
 def test_polygon_distance_is_point_to_segment():
     ctrl = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
     t = make_knots(3, 1, False)
