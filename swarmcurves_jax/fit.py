@@ -590,16 +590,26 @@ def _seeds(pairs, space: _Space, norm_pts, closed, ends, dtype) -> np.ndarray:
 
 
 def stack_bases(pairs, closed, num_samples, n_pad, dtype) -> SpanBasis:
-    """The precomputed span bases (fixed knots) of swarms, stacked and padded alike."""
+    """The precomputed span bases (fixed knots) of swarms, stacked and padded alike;
+    read-only, made once per shape (W1's three groups: 10 ms a call)."""
+    key = tuple((int(k), int(n)) for k, n in pairs)
+    return _stacked_bases(key, bool(closed), int(num_samples), int(n_pad), np.dtype(dtype))
+
+
+@functools.lru_cache(maxsize=64)
+def _stacked_bases(pairs, closed, num_samples, n_pad, dtype) -> SpanBasis:
     spans = max(n if closed else n - k for k, n in pairs)
     top = max(k for k, _ in pairs)
     per = [make_span_basis(n, k, closed, num_samples, n_pad, spans, top) for k, n in pairs]
-    return SpanBasis(
+    stacked = SpanBasis(
         *(
             np.stack(parts).astype(np.int32 if name in ("per_span", "num_spans") else dtype)
             for name, parts in zip(SpanBasis._fields, zip(*per))
         )
     )
+    for a in stacked:
+        a.setflags(write=False)
+    return stacked
 
 
 def _root_key(seed) -> jax.Array:

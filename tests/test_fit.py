@@ -56,6 +56,23 @@ def test_seed_grid_design_is_made_once_and_read_only():
         dense[0, 0] = 1.0
 
 
+def test_stacked_bases_are_made_once_and_read_only():
+    """A group's stacked span bases are a constant of their shapes, shared by every call:
+    read-only, and the same arrays as stacking each swarm's basis afresh."""
+    from swarmcurves_jax.fitness import make_span_basis
+
+    stack_bases = importlib.import_module("swarmcurves_jax.fit").stack_bases
+    pairs = [(3, 5), (3, 8)]
+    bases = stack_bases(pairs, False, 20, 10, np.float32)
+    assert stack_bases([[3, 5], [3, 8]], False, 20, 10, "float32") is bases
+    fresh = [make_span_basis(n, k, False, 20, 10, 5, 3) for k, n in pairs]
+    for name, got in zip(bases._fields, bases):
+        want = np.stack([getattr(b, name) for b in fresh])
+        np.testing.assert_array_equal(got, want.astype(got.dtype))
+        with pytest.raises(ValueError, match="read-only"):
+            got.reshape(-1)[0] = 1
+
+
 def test_polygon_finds_the_corners_of_a_square():
     corners = np.array([[0, 0], [2, 0], [2, 2], [0, 2], [0, 0]], float)
     t = np.linspace(0, 1, 201)

@@ -1,6 +1,7 @@
 """True point-to-curve distances: accurate to 1e-7 against a brute-force reference."""
 
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
@@ -8,7 +9,9 @@ from scipy.optimize import minimize_scalar
 from swarmcurves_jax import make_knots
 from swarmcurves_jax.projection import (
     _chord_d2,
+    _dense_design,
     _nearest_chords,
+    _rational,
     curve_derivatives,
     dense_parameters,
     project_points,
@@ -49,7 +52,7 @@ def test_projection_matches_brute_force(k, closed, rational, seed):
 @given(st.integers(0, 10_000), st.sampled_from([1.2, 5.0, 50.0]))
 def test_nearest_chords_are_those_of_every_chord(seed, spread):
     """The k-d tree's chords, asked again with more samples where unsure (far points: all
-    32 nearest samples on one side), are the three a search of every chord ranks first."""
+    16 nearest samples on one side), are the three a search of every chord ranks first."""
     rng = np.random.default_rng(seed)
     ctrl = rng.uniform(-1, 1, (7, 2))
     t = make_knots(7, 3, False)
@@ -59,7 +62,7 @@ def test_nearest_chords_are_those_of_every_chord(seed, spread):
 
 
 def test_nearest_chords_reach_a_long_chord_past_dense_samples():
-    """A point whose 32 nearest samples lie in a dense cluster while a long chord passes
+    """A point whose 16 nearest samples lie in a dense cluster while a long chord passes
     nearer: the first answer is unsure and the chord is found when asked again."""
     cluster = np.c_[1.0 + 1e-3 * np.arange(100), np.zeros(100)]
     samples = np.r_[cluster, [[-5.0, 0.5], [5.0, 0.5]]]
@@ -75,6 +78,23 @@ def _assert_top_chords(pts, samples):
     every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
     picked = np.sort(np.take_along_axis(every, got, axis=1), axis=1)
     np.testing.assert_array_equal(picked, np.sort(every, axis=1)[:, :3])
+
+
+def test_dense_design_is_made_once_and_read_only():
+    """The dense sampling's design matrix is a constant of the knots (every curve of a
+    shape on fixed knots shares it): made once, read-only, and the curve's samples through
+    it are those of evaluating the curve at the dense parameters, bit for bit."""
+    t = make_knots(9, 3, True)
+    grid, design = _dense_design(t.tobytes(), 3, True, 40)
+    assert _dense_design(t.tobytes(), 3, True, 40)[1] is design
+    np.testing.assert_array_equal(grid, dense_parameters(t, 40))
+    rng = np.random.default_rng(3)
+    ctrl, w = rng.uniform(-1, 1, (9, 2)), rng.uniform(0.5, 2.0, 9)
+    want = curve_derivatives(grid, ctrl, w, t, 3, True, max_nu=0)[0]
+    np.testing.assert_array_equal(_rational([design], ctrl, w)[0], want)
+    for a in (grid, design):
+        with pytest.raises(ValueError, match="read-only"):
+            a[0] = 1.0
 
 
 def test_a_span_evaluates_its_own_polynomial_at_its_right_end():
