@@ -131,7 +131,8 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
     k : int
     closed : bool
     min_samples : int
-        Size of the initial dense sampling.
+        Size of the initial dense sampling of a curve.  A polygon's (``k`` 1) is its
+        corners: its segments are its own chords, and Newton on a segment is exact.
 
     Returns
     -------
@@ -140,7 +141,9 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
     """
     points, t = np.asarray(points, dtype=np.float64), np.asarray(t, dtype=np.float64)
     num_spans = len(breakpoints(t)) - 1
-    per_span = max(8, -(-min_samples // num_spans))
+    # At least the three chords ranked (W1's seven polygons: 24 -> 11 ms, the same
+    # distances to 1e-16)
+    per_span = -(-3 // num_spans) if k == 1 else max(8, -(-min_samples // num_spans))
     grid, design = _dense_design(t.tobytes(), k, closed, per_span)
     samples = _rational([design], ctrl, weights)[0]
     cand = _nearest_chords(points, samples)  # intervals [grid[i], grid[i+1]]

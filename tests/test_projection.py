@@ -119,6 +119,27 @@ def test_polygon_distance_is_point_to_segment():
     np.testing.assert_allclose(dist, [0.3, 0.4, np.sqrt(2.0), 1.0], atol=1e-12)
 
 
+@given(st.integers(2, 9), st.booleans(), st.booleans(), st.integers(0, 10_000))
+def test_polygon_sampled_at_its_corners_projects_onto_its_segments(n, closed, rational, seed):
+    """A polygon's projection samples only its corners (its segments are the chords, from
+    one segment up): the distance and foot of each point are its nearest segment's."""
+    rng = np.random.default_rng(seed)
+    ctrl = rng.uniform(-1, 1, (n, 2))
+    w = rng.uniform(0.3, 3.0, n) if rational else np.ones(n)
+    t = make_knots(n, 1, closed)
+    pts = rng.uniform(-1.5, 1.5, (50, 2))
+    dist, u = project_points(pts, ctrl, w, t, 1, closed)
+    a = ctrl
+    b = np.roll(ctrl, -1, axis=0) if closed else ctrl[1:]
+    a = a if closed else ctrl[:-1]
+    ab, ap = b - a, pts[:, None, :] - a[None]
+    s = np.clip(np.einsum("nsd,sd->ns", ap, ab) / np.sum(ab**2, axis=1), 0.0, 1.0)
+    want = np.sqrt(np.min(np.sum((ap - s[..., None] * ab) ** 2, axis=2), axis=1))
+    np.testing.assert_allclose(dist, want, atol=1e-12)
+    foot = curve_derivatives(u, ctrl, w, t, 1, closed, max_nu=0)[0]
+    np.testing.assert_allclose(np.linalg.norm(foot - pts, axis=1), dist, atol=1e-12)
+
+
 def test_points_on_a_fast_self_approaching_curve_have_zero_distance():
     # A clamped quintic whose fast end passes within 1e-3 of its own middle: ranking sample
     # points (not chords) once projected some of these points onto the wrong branch.
