@@ -551,7 +551,8 @@ def _nearest_on_polygon(points, grid, ctrl, closed):
     foot on each segment.  The samples of a segment lie evenly along it, so its nearest to
     the point is the one nearest the foot, here the foot's rounded index and its two
     neighbours (rounding).  The distances are the tree's to the bit (the same
-    operations); W1's seven polygons: 68 -> 36 ms serial, the same seeds."""
+    operations), and so the samples, exact ties aside; W1's seven polygons: 68 -> 36 ms
+    serial, the same seeds."""
     ends = np.vstack([ctrl, ctrl[:1]]) if closed else ctrl
     a, ab = ends[:-1], np.diff(ends, axis=0)
     offset = [points[:, i, None] - a[None, :, i] for i in range(points.shape[1])]
@@ -573,10 +574,15 @@ def _seed_grid(closed: bool) -> np.ndarray:
     return np.linspace(0.0, 1.0, 2048, endpoint=not closed)
 
 
-@functools.lru_cache(maxsize=64)
 def _uniform_grid_design(n: int, k: int, closed: bool) -> np.ndarray:
     """:func:`_seed_grid`'s design matrix on the uniform knots (read-only): the same for
-    every call of a shape, so made once (W1's 21 swarms: 9 ms a call)."""
+    every call of a shape, so made once (W1's 21 swarms: 9 ms a call), up to 64 control
+    points (the cache then holds at most 32 MB)."""
+    return (_grid_design if n <= 64 else _grid_design.__wrapped__)(n, k, closed)
+
+
+@functools.lru_cache(maxsize=32)
+def _grid_design(n: int, k: int, closed: bool) -> np.ndarray:
     dense = design_matrix(_seed_grid(closed), make_knots(n, k, closed), k, closed=closed)
     dense.setflags(write=False)
     return dense

@@ -56,6 +56,8 @@ def test_seed_grid_design_is_made_once_and_read_only():
     np.testing.assert_array_equal(dense, want)
     with pytest.raises(ValueError, match="read-only"):
         dense[0, 0] = 1.0
+    big = grid_design(70, 3, False)  # past 64 control points: made each time, not kept
+    assert grid_design(70, 3, False) is not big and not big.flags.writeable
 
 
 @given(

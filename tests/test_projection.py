@@ -95,6 +95,12 @@ def test_dense_design_is_made_once_and_read_only():
     for a in (grid, design):
         with pytest.raises(ValueError, match="read-only"):
             a[0] = 1.0
+    kept = _dense_design.cache_info().currsize  # past 32 control points: not kept
+    t40 = make_knots(40, 3, False)
+    project_points(
+        rng.uniform(-1, 1, (5, 2)), rng.uniform(-1, 1, (40, 2)), np.ones(40), t40, 3, False
+    )
+    assert _dense_design.cache_info().currsize == kept
 
 
 def test_a_span_evaluates_its_own_polynomial_at_its_right_end():
