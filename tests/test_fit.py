@@ -7,8 +7,6 @@ import math
 import jax
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from swarmcurves_jax import Curve, FitResult, fit
 from swarmcurves_jax.datasets import random_bspline_points
@@ -58,31 +56,6 @@ def test_seed_grid_design_is_made_once_and_read_only():
         dense[0, 0] = 1.0
     big = grid_design(70, 3, False)  # past 64 control points: made each time, not kept
     assert grid_design(70, 3, False) is not big and not big.flags.writeable
-
-
-@given(
-    st.integers(2, 11),
-    st.booleans(),
-    st.integers(2, 3),
-    st.floats(-3.0, 1.0),
-    st.integers(0, 10_000),
-)
-@settings(max_examples=60, deadline=None)
-def test_polygon_seed_search_finds_the_k_d_trees_samples(n, closed, dim, size, seed):
-    """A polygon's seeds search their grid from each point's feet on the segments: the same
-    nearest samples, and the same distances to the bit, as a k-d tree of the grid."""
-    from scipy.spatial import cKDTree
-
-    fit_module = importlib.import_module("swarmcurves_jax.fit")
-    closed = closed and n >= 3
-    rng = np.random.default_rng(seed)
-    ctrl = rng.uniform(-1, 1, (n, dim)) * 10.0**size
-    pts = rng.uniform(-1.5, 1.5, (120, dim))
-    grid = fit_module._uniform_grid_design(n, 1, closed) @ ctrl
-    dist, j = fit_module._nearest_on_polygon(pts, grid, ctrl, closed)
-    want_dist, want_j = cKDTree(grid).query(pts)
-    np.testing.assert_array_equal(j, want_j)
-    np.testing.assert_array_equal(dist, want_dist)
 
 
 def test_stacked_bases_are_made_once_and_read_only():
