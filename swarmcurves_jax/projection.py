@@ -87,7 +87,9 @@ def _nearest_chords(points, samples, top=3, near=16):
     way, and about 10x quicker than searching every chord for every point (measured on
     W1's solutions; asking again rather than searching every chord at once: W1's 21
     projections 0.157 -> 0.13 s serial; 16 samples at first rather than 32, and an
-    unbalanced tree: 115 -> 98 ms, the same chords).
+    unbalanced tree: 115 -> 98 ms, the same chords).  scipy's tree, not pykdtree's (the
+    seeds'): pykdtree's 16-neighbour queries were 5 % quicker on idle cores but 4x slower
+    with both cores busy elsewhere (its OpenMP query waits for its descheduled threads).
     """
     a, b = samples[:-1], samples[1:]
     ab = b - a

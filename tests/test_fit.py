@@ -58,6 +58,38 @@ def test_seed_grid_design_is_made_once_and_read_only():
     assert grid_design(70, 3, False) is not big and not big.flags.writeable
 
 
+@pytest.mark.parametrize("closed", [False, True])
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_seed_parameter_correction_lowers_the_true_error(seed, dim, closed):
+    """The seeds' parameter correction (each point moved to its nearest grid sample, then
+    solved again) beats chord-length parameters where the points are spaced unevenly along
+    the curve: the true error at least 1.4x lower (measured: 1.6-6.4x on these cases).  A
+    wrong nearest sample would leave the chord-length fit, the best round kept."""
+    from swarmcurves_jax.basis import design_matrix
+    from swarmcurves_jax.fit import least_squares_ctrl, make_knots
+    from swarmcurves_jax.projection import project_points
+
+    rng = np.random.default_rng(seed)
+    k, n = 3, 8
+    t = make_knots(n, k, closed)
+    if closed:
+        a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+        ring = np.c_[np.cos(a), np.sin(a), np.zeros(n)] * (1.0 + 0.2 * rng.random((n, 1)))
+        ctrl = ring[:, :dim] + (0.1 * rng.normal(size=(n, dim)) if dim == 3 else 0.0)
+    else:
+        ctrl = np.c_[np.linspace(0.0, 4.0, n), 0.5 * rng.normal(size=(n, dim - 1))]
+    u = np.sort(rng.random(150)) ** 2  # dense near the start, sparse at the end
+    pts = design_matrix(u, t, k, closed=closed) @ ctrl
+
+    def error(c):
+        return project_points(pts, c, np.ones(n), t, k, closed)[0].mean()
+
+    corrected = error(least_squares_ctrl(pts, n, k, closed))
+    chord = error(least_squares_ctrl(pts, n, k, closed, rounds=0))
+    assert corrected * 1.4 < chord
+
+
 def test_stacked_bases_are_made_once_and_read_only():
     """A group's stacked span bases are a constant of their shapes, shared by every call:
     read-only, and the same arrays as stacking each swarm's basis afresh."""
