@@ -8,12 +8,12 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from swarmcurves_jax import PSOParams, fit
 from swarmcurves_jax.datasets import random_bspline_points
-from swarmcurves_jax.fit import _swarm_program
+from swarmcurves_jax.fit import _swarm_program, normalise
 
 GOOD = random_bspline_points(5, 3, False, num_points=40, seed=21)[0]
 P = PSOParams(0.7298, 1.49618, 1.49618, 0.1)
@@ -220,12 +220,24 @@ def point_sets(draw):
 
 @given(point_sets(), st.floats(-1e3, 1e3), st.floats(1e-3, 1e3))
 def test_invariants_translation_scaling_seed_and_no_recompile(pts, rel_shift, factor):
+    """A shifted and scaled copy gives the same curves, shifted and scaled, wherever its
+    normalised points round to the same float32 numbers as the original's.  They agree in
+    float64 to the rounding of the coordinates (below: a few units in the last place of the
+    largest, in half extents), but a value that close to a float32
+    rounding boundary can still round the other way, and the swarm then follows another
+    path (measured: one coordinate of 120 changed, the 6-point curves moved 5.8e-3
+    relative); those rare examples are not compared."""
     shift = rel_shift * np.ptp(pts * factor, axis=0).max()
+    moved_pts = pts * factor + shift
+    (norm, _, half), (moved_norm, _, moved_half) = normalise(pts), normalise(moved_pts)
+    reach = max(np.abs(pts).max() / half, np.abs(moved_pts).max() / moved_half)
+    np.testing.assert_allclose(moved_norm, norm, rtol=0, atol=1e-15 * (1 + reach))
+    assume(np.array_equal(norm.astype(np.float32), moved_norm.astype(np.float32)))
     kwargs = dict(cps=[4, 6], degrees=(2, 3), iterations=25, chunk_size=25, particles=16)
     base = fit(pts, **kwargs)
     _sane(base)
     before = _swarm_program._cache_size()
-    moved = fit(pts * factor + shift, **kwargs)
+    moved = fit(moved_pts, **kwargs)
     again = fit(pts, **kwargs)
     assert _swarm_program._cache_size() == before  # equal shapes: nothing recompiled
     for a, b, c in zip(base, moved, again):
