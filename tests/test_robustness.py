@@ -223,10 +223,10 @@ def test_invariants_translation_scaling_seed_and_no_recompile(pts, rel_shift, fa
     """A shifted and scaled copy gives the same curves, shifted and scaled, wherever its
     normalised points round to the same float32 numbers as the original's.  They agree in
     float64 to the rounding of the coordinates (below: a few units in the last place of the
-    largest, in half extents), but a value that close to a float32
-    rounding boundary can still round the other way, and the swarm then follows another
-    path (measured: one coordinate of 120 changed, the 6-point curves moved 5.8e-3
-    relative); those rare examples are not compared."""
+    largest, in half extents), but a value that close to a float32 rounding boundary can
+    still round the other way, and the swarm then follows another path (measured: one
+    coordinate of 120 changed, the 6-point curves moved 5.8e-3 relative); those rare
+    examples are not compared."""
     shift = rel_shift * np.ptp(pts * factor, axis=0).max()
     moved_pts = pts * factor + shift
     (norm, _, half), (moved_norm, _, moved_half) = normalise(pts), normalise(moved_pts)
