@@ -55,3 +55,19 @@ def test_peers_compute_fits_fitness(speed, where):
         in_jax = jax.jit(in_jax_numpy)(jnp.asarray(q), on_device)
         np.testing.assert_allclose(in_numpy, ours, rtol=1e-4, err_msg=f"NumPy, degree {k}")
         np.testing.assert_allclose(in_jax, ours, rtol=1e-4, err_msg=f"jax.numpy, degree {k}")
+
+
+def test_report_keeps_the_peers_ratios_against_their_own_w1_run(speed):
+    """Rerunning only W1 (``--only w1``) does not put the new time beside the peers' old
+    ratios: their table shows the W1 time they were divided by."""
+    w1 = dict(warm_s=3.0, cold_s=8.0, evals_per_s=9e5, best_cubic=2.8e-4, iterations=2000)
+    peer = {"seconds": 300.0, "scaled_from": 63, "ratio": 100.0}
+    report = dict(machine="test", repeats=3, w1=w1, peers={"NumPy (same fitness)": peer})
+    report["peers_ours_s"] = 3.0
+    row = "| **ours** (`fit`, refine=False) | 3.00 | 1 | warm |"
+    assert row in speed.markdown(report)
+    report["w1"] = dict(w1, warm_s=3.5)  # a later W1 run alone
+    table = speed.markdown(report)
+    assert "| warm (min of 3) | 3.50 s |" in table
+    assert "| **ours** (`fit`, refine=False) | 3.00 | 1 | warm, the run the peers" in table
+    assert "| NumPy (same fitness) | 300.0 | 100.0x |" in table
