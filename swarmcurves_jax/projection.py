@@ -16,7 +16,7 @@ import functools
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .basis import design_matrices, find_span
+from .basis import design_matrices, design_matrix, find_span
 from .knots import breakpoints
 
 __all__ = ["curve_derivatives", "project_points", "dense_parameters"]
@@ -64,7 +64,7 @@ def _dense_design(knots: bytes, k: int, closed: bool, per_span: int):
     :func:`project_points` up to 32 control points (the cache then holds at most 33 MB)."""
     t = np.frombuffer(knots)
     grid = dense_parameters(t, per_span)
-    design = design_matrices(grid, t, k, 0, closed=closed)[0]
+    design = design_matrix(grid, t, k, closed=closed)
     grid.setflags(write=False)
     design.setflags(write=False)
     return grid, design
