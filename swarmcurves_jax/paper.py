@@ -26,7 +26,7 @@ from .datasets import (
 )
 from .fit import fit, normalise
 from .knots import make_knots
-from .projection import project_points
+from .projection import distance_to_polyline, project_points
 from .results import FitResult
 
 __all__ = [
@@ -111,25 +111,10 @@ def arc_length_samples(polyline: np.ndarray, count: int, closed: bool = False) -
 
 
 def _to_polyline(points: np.ndarray, polyline: np.ndarray, closed: bool) -> np.ndarray:
-    """Distance from every point to a dense polyline: nearest vertices by k-d tree, then
-    the exact distance to the segments beside them."""
-    from scipy.spatial import cKDTree
-
-    poly = np.vstack([polyline, polyline[:1]]) if closed else polyline
-    _, idx = cKDTree(poly).query(points, k=4)
-    best = np.full(len(points), np.inf)
-    for j in range(idx.shape[1]):
-        for a_i in (idx[:, j] - 1, idx[:, j]):
-            a_i = np.clip(a_i, 0, len(poly) - 2)
-            a, b = poly[a_i], poly[a_i + 1]
-            ab = b - a
-            s = np.clip(
-                np.sum((points - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-300),
-                0.0,
-                1.0,
-            )
-            best = np.minimum(best, np.linalg.norm(points - a - s[:, None] * ab, axis=1))
-    return best
+    """Exact distance from every point to a polyline (closed: back to its first vertex):
+    the segments beside a point's few nearest vertices can miss its nearest segment where
+    other vertices crowd in."""
+    return distance_to_polyline(points, np.vstack([polyline, polyline[:1]]) if closed else polyline)
 
 
 def symmetric_distance(a: np.ndarray, b: np.ndarray, closed: bool = False) -> float:
