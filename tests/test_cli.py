@@ -202,6 +202,7 @@ def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        env=dict(os.environ, PYTHONFAULTHANDLER="1"),  # SIGABRT prints every thread's stack
     ) as proc:  # closes the pipes and reaps the process even when the test fails
         try:
             # Signal once the progress bar shows a finished chunk: after compiling (a fixed
@@ -212,7 +213,12 @@ def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig
                     seen += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
             assert re.search(r"[1-9]\d*/200000", seen), seen[-2000:]
             proc.send_signal(sig)
-            out, err = proc.communicate(timeout=120)
+            try:
+                out, err = proc.communicate(timeout=120)
+            except subprocess.TimeoutExpired:  # say where it is: a CI run once went on
+                proc.send_signal(signal.SIGABRT)
+                err = proc.communicate(timeout=30)[1]
+                pytest.fail(f"still running 120 s after {sig.name}; its stacks:\n{err[-8000:]}")
         finally:
             if proc.poll() is None:  # never leave a 200,000-iteration run behind
                 proc.kill()
