@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import inspect
 import math
 import os
 import queue
-import signal
 import threading
 import time
 import warnings
@@ -1061,32 +1059,6 @@ class _Launched(NamedTuple):
     timings: dict
 
 
-@contextlib.contextmanager
-def _interrupts_set(stop: threading.Event, watch: bool):
-    """While ``watch``, a Ctrl-C (SIGINT) also sets ``stop``, which the swarm loop checks
-    after every chunk, so that the stop does not hang on the KeyboardInterrupt alone: one
-    that lands inside a bare ``except:`` (jax's Python has several) is lost, and a CI run
-    of the command line went on after SIGINT (its progress bar kept counting).  Only from
-    the main thread, where SIGINT has Python's default handler (not where it is ignored
-    or the caller handles it)."""
-    if not watch or threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
-        yield
-        return
-
-    def handler(signum, frame):
-        stop.set()
-        signal.default_int_handler(signum, frame)
-
-    previous = signal.signal(signal.SIGINT, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def _launch(
     preps,
     opts: _Options,
@@ -1312,12 +1284,14 @@ def _launch(
     run = {"state": state, "history": [], "done": 0, "stopped": np.full(num, -1)}
     try:
         if len(parts) > 1:
-            with ThreadPoolExecutor(len(parts)) as pool, _interrupts_set(stop, catch_interrupt):
+            interrupted = False
+            with ThreadPoolExecutor(len(parts)) as pool:
                 futures = [pool.submit(part, i) for i in range(len(parts))]
                 try:
                     relay()
                 except KeyboardInterrupt:  # the parts stop after their current chunk
                     stop.set()
+                    interrupted = True
                 ran = [f.result() for f in futures]
             done = max(r["done"] for r in ran)
             # A part that reached tol sooner stopped sooner; the unsplit loop would have
@@ -1330,23 +1304,12 @@ def _launch(
                 "done": done,
                 "stopped": np.where(np.all(stopped >= 0, axis=0), stopped.max(axis=0), -1),
             }
+            if interrupted:
+                raise KeyboardInterrupt
         else:
-            with _interrupts_set(stop, catch_interrupt):
-                swarm(
-                    run,
-                    draws.result,
-                    state,
-                    boxes,
-                    seeds,
-                    pair_ids,
-                    bases,
-                    groups,
-                    place,
-                    report,
-                    stop,
-                )
-        if stop.is_set():  # the interrupt, even where its KeyboardInterrupt was lost
-            raise KeyboardInterrupt
+            swarm(
+                run, draws.result, state, boxes, seeds, pair_ids, bases, groups, place, report, stop
+            )
         if tol is not None and np.all(run["stopped"] >= 0):
             stop_reason = "tol"
     except KeyboardInterrupt:

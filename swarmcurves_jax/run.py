@@ -471,11 +471,6 @@ def _write_figures(cfg, result, points, out: Path) -> list[Path]:
 
 
 def _sigterm_to_interrupt(signum, frame):
-    """SIGTERM as a Ctrl-C: through SIGINT's handler where it has one (``fit``'s also tells
-    its swarm loop to stop, should the KeyboardInterrupt be lost), else the exception."""
-    handler = signal.getsignal(signal.SIGINT)
-    if callable(handler):
-        handler(signum, frame)
     raise KeyboardInterrupt
 
 

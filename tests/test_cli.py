@@ -189,16 +189,14 @@ def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig):
+    # The command line as a shell's foreground job starts it: Python's own SIGINT handler.
+    # A test run started as a background job without job control ignores SIGINT, and a
+    # child inherits that (two of this stop's CI runs, launched so, timed out here).
+    start = "import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+    start += "runpy.run_module('swarmcurves_jax.run', run_name='__main__')"
+    args = ["--iterations", "200000", "--out", str(tmp_path / "o")]
     with subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "swarmcurves_jax.run",
-            "--iterations",
-            "200000",
-            "--out",
-            str(tmp_path / "o"),
-        ],
+        [sys.executable, "-c", start, *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -3,8 +3,6 @@
 import importlib
 import json
 import math
-import signal
-import threading
 
 import jax
 import numpy as np
@@ -259,35 +257,6 @@ def test_bad_input_raises_a_clear_error(kwargs, message):
 def test_unknown_keyword_is_a_type_error():
     with pytest.raises(TypeError, match="unexpected keyword argument 'particle'"):
         fit(spline_points(13, 5, False), particle=10)
-
-
-def test_an_interrupt_lost_in_a_bare_except_still_stops_the_swarm():
-    """A Ctrl-C whose KeyboardInterrupt lands in a bare ``except:`` (jax's Python has
-    several) is lost, but fit's SIGINT handler has told the swarm loop too: the run stops
-    after that chunk, as interrupted, with its best so far, and SIGINT gets its handler
-    back.  (A CI run of the command line once went on after SIGINT.)"""
-    if threading.current_thread() is not threading.main_thread():
-        pytest.skip("signal handlers are installed from the main thread only")
-    sent = []
-
-    def swallow(at, best):
-        if at >= 60 and not sent:
-            sent.append(at)
-            try:
-                signal.raise_signal(signal.SIGINT)
-            except BaseException:  # noqa: BLE001, S110 (what a bare except does to it)
-                pass
-
-    pts = spline_points(RECOVER_OPEN, 6, False)
-    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # xdist workers ignore it
-    try:
-        result = fit(pts, cps=[5], iterations=3000, chunk_size=20, refine=False, callback=swallow)
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    finally:
-        signal.signal(signal.SIGINT, before)
-    assert sent and result.stop_reason == "interrupted"
-    assert sent[0] <= result.history.shape[-1] <= sent[0] + 40
-    assert np.isfinite(result.best.error)
 
 
 def test_callback_without_tol_reports_every_chunk_in_order():
