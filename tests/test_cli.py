@@ -191,7 +191,7 @@ def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
 def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig):
     # The command line as a shell's foreground job starts it: Python's own SIGINT handler.
     # A test run started as a background job without job control ignores SIGINT, and a
-    # child inherits that (two of this stop's CI runs, launched so, timed out here).
+    # child inherits that (a test run so launched timed out here).
     start = "import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
     start += "runpy.run_module('swarmcurves_jax.run', run_name='__main__')"
     args = ["--iterations", "200000", "--out", str(tmp_path / "o")]
@@ -213,7 +213,7 @@ def test_interrupt_keeps_the_best_so_far_and_writes_complete_files(tmp_path, sig
             proc.send_signal(sig)
             try:
                 out, err = proc.communicate(timeout=120)
-            except subprocess.TimeoutExpired:  # say where it is: a CI run once went on
+            except subprocess.TimeoutExpired:  # say where it is stuck
                 proc.send_signal(signal.SIGABRT)
                 err = proc.communicate(timeout=30)[1]
                 pytest.fail(f"still running 120 s after {sig.name}; its stacks:\n{err[-8000:]}")
