@@ -66,8 +66,9 @@ def test_seed_parameter_correction_lowers_the_true_error(seed, dim, closed):
     solved again) beats chord-length parameters where the points are spaced unevenly along
     the curve: the true error at least 1.4x lower (measured: 1.6-6.4x on these cases).  A
     wrong nearest sample would leave the chord-length fit, the best round kept."""
+    from swarmcurves_jax import make_knots
     from swarmcurves_jax.basis import design_matrix
-    from swarmcurves_jax.fit import least_squares_ctrl, make_knots
+    from swarmcurves_jax.fit import least_squares_ctrl
     from swarmcurves_jax.projection import project_points
 
     rng = np.random.default_rng(seed)

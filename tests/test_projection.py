@@ -71,7 +71,7 @@ def test_nearest_chords_reach_a_long_chord_past_dense_samples():
     samples = np.r_[cluster, [[-5.0, 0.5], [5.0, 0.5]]]
     pts = np.array([[0.0, 0.4], [0.3, 0.45], [1.05, 0.01]])
     _assert_top_chords(pts, samples)
-    assert _nearest_chords(pts, samples)[0].tolist().count(100) == 1  # the long chord
+    assert _nearest_chords(pts, samples)[0][0].tolist().count(100) == 1  # the long chord
 
 
 def _segment_distances(pts, vertices):
@@ -107,12 +107,13 @@ def test_distance_to_polyline_past_crowded_vertices():
 
 
 def _assert_top_chords(pts, samples):
-    got = _nearest_chords(pts, samples)
+    got, got_d2 = _nearest_chords(pts, samples)
     a, ab = samples[:-1], np.diff(samples, axis=0)
     inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
     every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
     picked = np.sort(np.take_along_axis(every, got, axis=1), axis=1)
     np.testing.assert_array_equal(picked, np.sort(every, axis=1)[:, :3])
+    np.testing.assert_allclose(np.sort(got_d2, axis=1), picked, rtol=1e-15)
 
 
 def test_dense_design_is_made_once_and_read_only():
