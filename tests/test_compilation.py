@@ -1,5 +1,6 @@
 """All swarms of a call are one compiled program; equal shapes never compile again."""
 
+import importlib
 import logging
 
 import jax
@@ -68,3 +69,61 @@ def test_random_keys_and_draws_compile_apart(tmp_path):
     assert swarm and draws
     assert all("threefry2x32" not in text for text in swarm)
     assert all("threefry2x32" in text for text in draws)
+
+
+class _LowerFor:
+    """A jitted program that also lowers each new trace for ``platform``, keeping the text."""
+
+    def __init__(self, jitted, platform, texts):
+        self.jitted, self.platform, self.texts, self.seen = jitted, platform, texts, set()
+
+    def trace(self, *args, **kwargs):
+        traced = self.jitted.trace(*args, **kwargs)
+        shapes = str(jax.tree_util.tree_map(np.shape, (args, kwargs)))
+        if shapes not in self.seen:
+            self.seen.add(shapes)
+            self.texts.append(traced.lower(lowering_platforms=(self.platform,)).as_text())
+        return traced
+
+    def __call__(self, *args, **kwargs):
+        self.trace(*args, **kwargs)
+        return self.jitted(*args, **kwargs)
+
+
+def test_the_programs_a_gpu_runs_lower_for_cuda(monkeypatch):
+    """No GPU in CI: ``fit`` builds its programs as it would on a GPU (JAX's default backend
+    says "gpu": one device, the search fused into the Newton loop) and each lowers for CUDA,
+    with every matrix product in float32 (XLA:GPU's default is TF32, which undercut the
+    true distance on an H100, ``fitness.PRECISION``).  They run on the CPU here."""
+    fit_module = importlib.import_module("swarmcurves_jax.fit")
+    u = np.linspace(0, 1, 60)
+    pts = np.c_[u, np.sin(3 * u)]
+    kwargs = dict(cps=(5, 6), degrees=(1, 3), particles=8, iterations=10)
+
+    def lowered(backend, platform, refine):
+        names = ("_initial_draws", "_swarm_program") + ("_refine_program",) * refine
+        texts = {name: [] for name in names}
+        programs = [getattr(fit_module, name) for name in texts]
+        try:
+            with monkeypatch.context() as patch:
+                patch.setattr(jax, "default_backend", lambda: backend)
+                for program, found in zip(programs, texts.values()):
+                    patch.setattr(fit_module, program.__name__, _LowerFor(program, platform, found))
+                result = fit(pts, refine=refine, **kwargs)
+        finally:  # the backend is read while tracing: no trace made here may be reused
+            for program in programs:
+                program.clear_cache()
+        assert all(texts.values()), texts
+        return result, {name: "\n".join(found) for name, found in texts.items()}
+
+    gpu, cuda = lowered("gpu", "cuda", refine=True)
+    cpu, host = lowered("cpu", "cpu", refine=False)
+    # Refined, the GPU's curves are no worse than the CPU's swarm alone.
+    assert all(g.error <= c.error * (1 + 1e-5) for g, c in zip(gpu.solutions, cpu.solutions))
+    for text in cuda.values():
+        dots = [line for line in text.splitlines() if "dot_general" in line]
+        assert all("precision = [HIGHEST, HIGHEST]" in line for line in dots), dots
+    # The CPU's swarm runs the search in a branch of its own; a GPU's keeps it fused.
+    assert "stablehlo.case" in host["_swarm_program"]
+    assert "stablehlo.case" not in cuda["_swarm_program"]
+    assert cuda["_swarm_program"].count("dot_general") >= 4
