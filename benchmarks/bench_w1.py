@@ -19,12 +19,14 @@ of the same program varies by 2x with the steal, so compare code by CPU time or 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import platform
 import resource
 import time
 
 import jax
+import jax.numpy as jnp
 
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
@@ -60,6 +62,23 @@ def stolen_seconds() -> float:
         return int(fields[8]) / os.sysconf("SC_CLK_TCK")
     except (OSError, IndexError, ValueError):
         return float("nan")
+
+
+def matmul_flops(size: int = 4096, repeats: int = 2) -> float:
+    """FLOP/s of a ``size``² float32 matrix product (``precision="highest"``: float32 on a
+    GPU too, whose default is TF32), the best of ``repeats`` calls after one that compiles.
+    A gauge of the machine's window: on this shared machine the same W1 code's CPU time
+    moves by 30 % and more between windows, and this product's speed with it, though not in
+    proportion (README, "Speed")."""
+    a = jax.random.normal(jax.random.key(0), (size, size), jnp.float32)
+    product = jax.jit(lambda x: jnp.matmul(x, x, precision="highest"))
+    jax.block_until_ready(product(a))
+    best = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(product(a))
+        best = min(best, time.perf_counter() - t0)
+    return 2 * size**3 / best
 
 
 #: (degrees, cps, particles) of each workload; both fit f4's 200 points for 2000 iterations.
@@ -106,12 +125,14 @@ def main(argv=None):
     result = fit(pts, **kwargs)
     cold = time.perf_counter() - t0
     warm, stages, cpu, stolen = [], [], [], []
+    machine = [matmul_flops()]
     for _ in range(args.repeats):
         t0, c0, s0 = time.perf_counter(), cpu_seconds(), stolen_seconds()
         stages.append(fit(pts, **kwargs).timings)
         warm.append(time.perf_counter() - t0)
         cpu.append(cpu_seconds() - c0)
         stolen.append(stolen_seconds() - s0)
+    machine.append(matmul_flops())
     with_bar = []
     if args.progress:
         import io
@@ -142,6 +163,10 @@ def main(argv=None):
     print(
         f"warm CPU time : {min(cpu):.2f} s (min; all: {', '.join(f'{c:.2f}' for c in cpu)}); "
         f"stolen: {', '.join(f'{x:.1f}' for x in stolen)} s"
+    )
+    print(
+        f"machine now   : a 4096² float32 matmul at {machine[0] / 1e9:.1f} GFLOP/s before the "
+        f"warm runs, {machine[1] / 1e9:.1f} after (README: this machine's windows)"
     )
     if with_bar:
         print(

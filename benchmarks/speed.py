@@ -59,7 +59,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from bench_w1 import cpu_model, cpu_seconds  # a sibling script: run from benchmarks/
+from bench_w1 import cpu_model, cpu_seconds, matmul_flops  # a sibling script: run from benchmarks/
 
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
@@ -514,12 +514,7 @@ def fitness_flops(n_pts, groups, bases, n_pad, dim, particles, every=1):
 
 
 def section_roofline(args, report):
-    size = 4096
-    a = jax.random.normal(jax.random.key(0), (size, size), jnp.float32)
-    # "highest": float32 products on a GPU too, whose default for float32 is TF32
-    mm = jax.jit(lambda x: jnp.matmul(x, x, precision="highest"))
-    _, best, _ = timed(lambda: jax.block_until_ready(mm(a)), 3)  # the first call compiles
-    peak = 2 * size**3 / best
+    peak = matmul_flops(4096, 3)
     _, groups, bases = w1_problem()
     samples = "/".join(str(g[3]) for g in groups)
     # 200 points padded to 208
