@@ -69,7 +69,7 @@ def matmul_flops(size: int = 4096, repeats: int = 2) -> float:
     GPU too, whose default is TF32), the best of ``repeats`` calls after one that compiles.
     A gauge of the machine's window: on this shared machine the same W1 code's CPU time
     moves by 30 % and more between windows, and this product's speed with it, though not in
-    proportion (README, "Speed")."""
+    proportion (README, "Speed (issue 6)", "The machine")."""
     a = jax.random.normal(jax.random.key(0), (size, size), jnp.float32)
     product = jax.jit(lambda x: jnp.matmul(x, x, precision="highest"))
     jax.block_until_ready(product(a))
@@ -166,7 +166,7 @@ def main(argv=None):
     )
     print(
         f"machine now   : a 4096² float32 matmul at {machine[0] / 1e9:.1f} GFLOP/s before the "
-        f"warm runs, {machine[1] / 1e9:.1f} after (README: this machine's windows)"
+        f"warm runs, {machine[1] / 1e9:.1f} after (a gauge of the window: README, The machine)"
     )
     if with_bar:
         print(
