@@ -11,12 +11,22 @@ import numpy as np
 from .knots import check_degree_count, check_knots
 from .projection import curve_derivatives
 
-__all__ = ["Curve", "SCHEMA_VERSION"]
+__all__ = ["Curve", "READABLE_SCHEMA_VERSIONS", "SCHEMA_VERSION"]
 
-#: Version of the dictionary layout written by :meth:`Curve.to_dict`.
-SCHEMA_VERSION = 1
+#: Version of the dictionary layout written by :meth:`Curve.to_dict` (2: the two-sided
+#: measures; version 1 dictionaries still load, with those measures ``nan``).
+SCHEMA_VERSION = 2
+READABLE_SCHEMA_VERSIONS = (1, 2)
 
-_METRICS = ("error", "max_error", "rms_error", "error_pct_diag")
+_METRICS = (
+    "error",
+    "max_error",
+    "rms_error",
+    "error_pct_diag",
+    "mean_deviation",
+    "max_deviation",
+    "max_deviation_pct_diag",
+)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -41,6 +51,14 @@ class Curve:
         projection, in the normalised frame of SPEC §1 (``nan`` if never measured).
     error_pct_diag : float
         ``error`` as a percentage of the data's bounding-box diagonal.
+    mean_deviation, max_deviation : float
+        The two-sided measures that judge a fit (:mod:`swarmcurves_jax.measures`), in the
+        normalised frame: the mean of ``error`` and of the arc-length mean distance from
+        the curve to the polyline through the data, and the Hausdorff distance between
+        the curve and that polyline.  Unlike ``error`` they see a curve that leaves the
+        data between or beyond the points.
+    max_deviation_pct_diag : float
+        ``max_deviation`` as a percentage of the data's bounding-box diagonal.
     residuals : ndarray, shape (N,) or None
         Per-point distances (normalised frame), in the order of the fitted points.
     info : dict
@@ -57,6 +75,9 @@ class Curve:
     max_error: float = math.nan
     rms_error: float = math.nan
     error_pct_diag: float = math.nan
+    mean_deviation: float = math.nan
+    max_deviation: float = math.nan
+    max_deviation_pct_diag: float = math.nan
     residuals: np.ndarray | None = None
     info: dict = dataclasses.field(default_factory=dict)
 
@@ -185,10 +206,10 @@ class Curve:
         if not isinstance(d, dict):
             raise ValueError(f"Curve.from_dict expects a dict, got {type(d).__name__}")
         version = d.get("schema_version")
-        if version != SCHEMA_VERSION:
+        if version not in READABLE_SCHEMA_VERSIONS:
             raise ValueError(
                 f"schema_version {version!r} is not supported; this version of "
-                f"swarmcurves_jax reads schema_version {SCHEMA_VERSION}"
+                f"swarmcurves_jax reads schema_version {' or '.join(map(str, READABLE_SCHEMA_VERSIONS))}"
             )
         required = ("degree", "closed", "rational", "knots", "control_points", "weights")
         missing = [key for key in required if key not in d]
@@ -216,5 +237,5 @@ class Curve:
         rat = " rational" if self.rational else ""
         return (
             f"Curve(degree={self.degree}, n_ctrl={self.n_ctrl}, {kind}{rat}, "
-            f"dim={self.dim}, error={self.error:.3g})"
+            f"dim={self.dim}, error={self.error:.3g}, max_deviation={self.max_deviation:.3g})"
         )

@@ -16,7 +16,7 @@ from typing import Iterable
 
 import numpy as np
 
-from .curves import SCHEMA_VERSION, Curve
+from .curves import READABLE_SCHEMA_VERSIONS, SCHEMA_VERSION, Curve
 from .interop import bezier_segments, clamped_form
 
 __all__ = [
@@ -67,10 +67,11 @@ def read_solutions(path) -> list[Curve]:
         raise ValueError(f"{path}: not a readable solutions.json ({exc})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("solutions"), list):
         raise ValueError(f"{path}: not a solutions.json (no 'solutions' list)")
-    if doc.get("schema_version") != SCHEMA_VERSION:
+    if doc.get("schema_version") not in READABLE_SCHEMA_VERSIONS:
+        readable = " or ".join(map(str, READABLE_SCHEMA_VERSIONS))
         raise ValueError(
             f"{path}: schema_version {doc.get('schema_version')!r} is not supported; this "
-            f"version reads schema_version {SCHEMA_VERSION}"
+            f"version reads schema_version {readable}"
         )
     out = []
     for i, d in enumerate(doc["solutions"]):

@@ -36,11 +36,16 @@ from .curves import Curve
 from .devices import Placement, cpu_devices
 from .fitness import (
     PRECISION,
+    Polyline,
     SpanBasis,
+    curve_samples,
+    data_polyline,
+    excursion,
     foot_samples,
     free_knot_basis,
     make_span_basis,
     point_distances,
+    sample_excursions,
 )
 from .knots import (
     curvature_widths,
@@ -49,6 +54,7 @@ from .knots import (
     make_knots,
     span_widths,
 )
+from .measures import deviations
 from .projection import project_points
 from .results import FitResult
 
@@ -162,6 +168,17 @@ def _feet(q, basis, points, space, pair, k, dense=True):
     shape (N,) float (:func:`~swarmcurves_jax.fitness.search_starts`)."""
     basis = space.basis(q, pair, k, basis)
     return foot_samples(*_geometry(q, space), basis, points, dense)
+
+
+def _excursion(q, basis, polyline: Polyline, space, pair, k, per_sample=False):
+    """How far the curve of position ``q`` strays from the data polyline: the arc-length
+    mean excess (:func:`~swarmcurves_jax.fitness.excursion`), or with ``per_sample`` each
+    sample's excess and arc length."""
+    basis = space.basis(q, pair, k, basis)
+    samples, tangents = curve_samples(*_geometry(q, space), basis)
+    if per_sample:
+        return sample_excursions(samples, tangents, basis, polyline)
+    return excursion(samples, tangents, basis, polyline)
 
 
 def _search_apart(space: _Space) -> bool:
@@ -307,6 +324,7 @@ def _swarm_program(
     def one_curve(shared, key_data, draws, state, feet, boxes, seeds, points, mask):
         (pairs, params, bases, tol, max_steps), first = shared
         count = jnp.sum(mask)
+        polyline = data_polyline(points, mask, space.closed)
 
         def start(draw, state, box, seed):
             """The swarm's state, fresh where it has not started."""
@@ -332,7 +350,8 @@ def _swarm_program(
                         q, basis, points[cut], space, pair, k, found, search_every > 1
                     )
 
-                return _masked_mean(at, mask, count, parts)
+                strays = _excursion(q, basis, polyline, space, pair, k)
+                return _masked_mean(at, mask, count, parts) + strays
 
             if k == 1 or (search_every == 1 and not _search_apart(space)):
                 return jax.vmap(lambda q: mean(q, None))(positions), feet
@@ -411,10 +430,18 @@ def _refine_program(
     def one_curve(shared, state, boxes, seeds, points, mask):
         pairs, bases = shared
         holdout = (jnp.arange(points.shape[0]) % local.HOLDOUT_EVERY == 2) * mask
+        polyline = data_polyline(points, mask, space.closed)
+        count = jnp.sum(mask)
 
         def one_swarm(pair, state, box, seed, basis, k):
             def residuals(q, foot):
-                return _distances(q, basis, points, space, pair, k, foot) * mask
+                """The points' distances, then each curve sample's excursion weighted by
+                its share of the arc (times the point count: their sum per point is the
+                swarm's excursion term)."""
+                near = _distances(q, basis, points, space, pair, k, foot) * mask
+                excess, arc = _excursion(q, basis, polyline, space, pair, k, per_sample=True)
+                share = jax.lax.stop_gradient(arc * (count / jnp.maximum(jnp.sum(arc), 1e-30)))
+                return jnp.concatenate([near, excess * share])
 
             def search(q):
                 return foot_samples(*_geometry(q, space), space.basis(q, pair, k, basis), points)
@@ -425,7 +452,17 @@ def _refine_program(
             starts = [state.best_position[None], state.pbest_position[top]]
             starts = jnp.concatenate(starts + ([seed[None]] if seeded else []))
             polish = local.levenberg_marquardt if method == "lm" else local.lbfgs
-            problem = local.Problem(residuals, search, free, box.lower, box.upper, holdout, mask)
+            extra = jnp.zeros(basis.sample_value.shape[-2], mask.dtype)
+            problem = local.Problem(
+                residuals,
+                search,
+                free,
+                box.lower,
+                box.upper,
+                jnp.concatenate([holdout, extra]),
+                jnp.concatenate([mask, extra]),
+                jnp.concatenate([jnp.zeros_like(mask), extra + 1.0]),
+            )
             xs, fs, scores = jax.vmap(lambda x0: polish(problem, x0))(starts)
             i = jnp.argmin(jnp.where(jnp.isnan(scores), jnp.inf, scores))
             return xs[i], fs[i]
@@ -1510,11 +1547,13 @@ def _knots(q, k, n, space) -> np.ndarray:
 
 
 def _make_curve(k, n, candidates, steps, space, closed, norm_pts, center, scale, seed):
-    """Host side: un-pad, measure by true projection, map back to the caller's frame.
+    """Host side: un-pad, measure by true projection both ways, map back to the caller's
+    frame.
 
     ``candidates``: ``(position, fitness, refined)`` of the swarm's best and, if its
-    fitness is lower, the refined one; the lower true error wins (the fitness is an
-    estimate, so a refinement that lowers it could still raise the error).
+    fitness is lower, the refined one; the lower two-sided ``mean_deviation`` wins (the
+    fitness is an estimate, and the one-sided error cannot see a polish that lowers it by
+    sending a stretch of curve away from the data).
     """
     measured = []
     for q, fitness, refined in candidates:
@@ -1524,13 +1563,16 @@ def _make_curve(k, n, candidates, steps, space, closed, norm_pts, center, scale,
         ctrl = ctrl[:n]
         weights = np.ones(n) if log_w is None else np.exp(log_w[:n] - log_w[:n].max())
         dist, foot = project_points(norm_pts, ctrl, weights, t, k, closed)
-        measured.append((float(np.mean(dist)), ctrl, weights, t, dist, foot, fitness, refined))
-    error, ctrl, weights, t, dist, foot, fitness, refined = min(
-        measured, key=lambda m: math.inf if math.isnan(m[0]) else m[0]
+        dev = deviations(norm_pts, ctrl, weights, t, k, closed, dist)
+        measured.append((dev, ctrl, weights, t, dist, foot, fitness, refined))
+    dev, ctrl, weights, t, dist, foot, fitness, refined = min(
+        measured, key=lambda m: math.inf if math.isnan(m[0].mean_deviation) else m[0].mean_deviation
     )
     if _runs_backwards(foot, closed):  # same geometry, traversed like the input
         ctrl, weights = ctrl[::-1], weights[::-1]
     diag = float(np.linalg.norm(np.ptp(norm_pts, axis=0)))
+    error = float(np.mean(dist))
+    pct = lambda x: 100.0 * x / diag if diag > 0 else (0.0 if x == 0 else math.inf)  # noqa: E731
     return Curve(
         degree=k,
         control_points=center + scale * ctrl,
@@ -1541,13 +1583,18 @@ def _make_curve(k, n, candidates, steps, space, closed, norm_pts, center, scale,
         error=error,
         max_error=float(np.max(dist)),
         rms_error=float(np.sqrt(np.mean(dist**2))),
-        error_pct_diag=100.0 * error / diag if diag > 0 else (0.0 if error == 0 else math.inf),
+        error_pct_diag=pct(error),
+        mean_deviation=dev.mean_deviation,
+        max_deviation=dev.max_deviation,
+        max_deviation_pct_diag=pct(dev.max_deviation),
         residuals=dist,
         info={
             "iterations": steps,
             "fitness": fitness,
             "refined": refined,
             "seed": seed,
+            "max_excursion": dev.max_excursion,
+            "rms_excursion": dev.rms_excursion,
         },
     )
 

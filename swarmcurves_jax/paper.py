@@ -89,7 +89,7 @@ class CaseRun:
         """The solution the case's figure shows."""
         show = self.case.show
         if show == "sparsest":
-            return self.result.sparsest(PAPER_PCT_DIAG) or self.result.best
+            return self.result.sparsest() or self.result.best
         return self.result.best if show == "best" else self.result[show]
 
     def row(self, degree: int, n: int) -> dict[str, Any]:
@@ -361,6 +361,8 @@ def _measure(case: Case, result: FitResult, curve: Curve) -> dict[str, Any]:
         "max_error": curve.max_error,
         "rms_error": curve.rms_error,
         "error_pct_diag": curve.error_pct_diag,
+        "mean_deviation": curve.mean_deviation,
+        "max_deviation": curve.max_deviation,
         "error_vs_clean": math.nan,
         "symmetric_distance": math.nan,
         "wall_time": result.wall_time,

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from .curves import Curve
-from .projection import project_points
+from .measures import data_polyline
+from .projection import distance_to_polyline, project_points
 from .results import FitResult
 
 __all__ = [
@@ -39,7 +40,9 @@ def residual_along_curve(curve: Curve, points, u) -> np.ndarray:
 
 
 def plot_curve(curve: Curve, points=None, ax=None, samples: int = 1000, cmap: str = "viridis"):
-    """Data points, and the curve coloured by the distance of the data to it (caller's units)."""
+    """Data points, and the curve coloured by how far it is from the data, both ways
+    (caller's units): the larger of the data's distance to it and its distance to the
+    polyline through the data, so a loop or a spike between the points shows."""
     from matplotlib.collections import LineCollection
 
     u = np.linspace(0, 1, samples)
@@ -48,17 +51,23 @@ def plot_curve(curve: Curve, points=None, ax=None, samples: int = 1000, cmap: st
     if points is not None:
         data = np.asarray(points, dtype=float)
         ax.plot(data[:, 0], data[:, 1], ".", color="0.6", ms=3, label="data")
-        dist = residual_along_curve(curve, data, u)
+        strays = distance_to_polyline(pts, data_polyline(data, curve.closed))
+        dist = np.maximum(residual_along_curve(curve, data, u), strays)
         segs = np.stack([pts[:-1, :2], pts[1:, :2]], axis=1)
         lc = LineCollection(segs, cmap=cmap, linewidths=2)
         lc.set_array(0.5 * (dist[:-1] + dist[1:]))
         ax.add_collection(lc)
-        ax.figure.colorbar(lc, ax=ax, label="distance of the data to the curve")
+        ax.figure.colorbar(lc, ax=ax, label="distance between curve and data, both ways")
     else:
         ax.plot(pts[:, 0], pts[:, 1], "-", lw=2)
     ax.set_aspect("equal", adjustable="datalim")
     ax.autoscale_view()
-    ax.set_title(f"degree {curve.degree}, {curve.n_ctrl} control points, error {curve.error:.2e}")
+    ax.set_title(
+        f"degree {curve.degree}, {curve.n_ctrl} control points\n"
+        f"max deviation {curve.max_deviation_pct_diag:.3g} % of diagonal, "
+        f"mean deviation {curve.mean_deviation:.2e}, error {curve.error:.2e}",
+        fontsize="medium",
+    )
     return ax
 
 
@@ -92,9 +101,9 @@ def plot_solution(curve: Curve, points=None, true_control_points=None, fig=None)
 
 
 def plot_error_vs_cps(
-    result: FitResult, ax=None, metric: str = "error", highlight: Curve | None = None
+    result: FitResult, ax=None, metric: str = "mean_deviation", highlight: Curve | None = None
 ):
-    """Error (log scale) against the control-point count, one line per degree; the
+    """A measure (log scale; default the two-sided mean deviation) against the control-point count, one line per degree; the
     ``highlight`` solution (e.g. the one drawn beside it) is ringed."""
     ax = _axes(ax)
     for k in sorted({c.degree for c in result.solutions}):

@@ -51,6 +51,9 @@ class Problem(NamedTuple):
     the iterate returned: early stopping, so noisy data are not chased
     (:data:`HOLDOUT_EVERY`).  ``valid`` (N,) marks the real points of a padded batch:
     the residuals of the others must be zero, and means count only the real ones.
+    ``penalty`` (N,) marks residuals that are no point's distance but a penalty (the
+    curve's excursions from the data, weighted so that their sum per real point is the
+    swarm's excursion term): always fitted, and added to every mean and score.
     """
 
     residuals: Callable[[jax.Array, jax.Array], jax.Array]
@@ -60,23 +63,31 @@ class Problem(NamedTuple):
     upper: jax.Array
     holdout: jax.Array | None = None
     valid: jax.Array | None = None
+    penalty: jax.Array | None = None
 
 
 def _mean(valid):
-    """The mean distance over the real points (all of them when ``valid`` is None)."""
+    """The mean distance over the real points (all of them when ``valid`` is None), plus
+    the penalty residuals per real point (padding's residuals are zero)."""
     if valid is None:
         return jnp.mean
     return lambda d: jnp.sum(d) * (1.0 / jnp.maximum(jnp.sum(valid), 1.0))
 
 
-def _scores(holdout, valid):
+def _scores(holdout, valid, penalty):
     """``(train weights, score)``: with a hold-out mask the fit uses the other points and
-    the score (which picks the iterate returned) is the hold-out points' mean distance."""
+    the score (which picks the iterate returned) is the hold-out points' mean distance
+    plus the penalty per real point; the penalty residuals are always fitted."""
     ones = 1.0 if valid is None else valid
+    if penalty is not None:
+        ones = ones + penalty
     if holdout is None:
         return ones, _mean(valid)
     inv = 1.0 / jnp.maximum(jnp.sum(holdout), 1.0)
-    return ones - holdout, lambda d: jnp.sum(holdout * d) * inv
+    if penalty is None:
+        return ones - holdout, lambda d: jnp.sum(holdout * d) * inv
+    per_point = 1.0 / jnp.maximum(jnp.sum(valid), 1.0)
+    return ones - holdout, lambda d: jnp.sum(holdout * d) * inv + jnp.sum(penalty * d) * per_point
 
 
 def levenberg_marquardt(
@@ -91,9 +102,9 @@ def levenberg_marquardt(
     Returns ``(x, mean distance over all points, score)`` for the iterate with the best
     score (``x0`` included): the hold-out mean, or without hold-out the mean itself.
     """
-    residuals, search, free, lower, upper, holdout, valid = problem
+    residuals, search, free, lower, upper, holdout, valid, penalty = problem
     eye = jnp.eye(x0.shape[0], dtype=x0.dtype)
-    train, score = _scores(holdout, valid)
+    train, score = _scores(holdout, valid, penalty)
     mean = _mean(valid)
 
     def body(carry, reweight):
@@ -177,8 +188,8 @@ def lbfgs(
     Frozen coordinates are held by evaluating the loss at ``where(free, x, x0)``, bounds by
     clipping there, so their gradient is zero and L-BFGS never moves them.
     """
-    residuals, search, free, lower, upper, holdout, valid = problem
-    train, score = _scores(holdout, valid)
+    residuals, search, free, lower, upper, holdout, valid, penalty = problem
+    train, score = _scores(holdout, valid, penalty)
     mean = _mean(valid)
 
     def project(x):

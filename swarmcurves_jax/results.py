@@ -9,14 +9,20 @@ import numpy as np
 
 from .curves import Curve
 
-__all__ = ["FitResult", "Table"]
+__all__ = ["FitResult", "Table", "DEFAULT_PCT_DIAG"]
+
+#: :meth:`FitResult.sparsest`'s default tolerance: the largest deviation, as % of the
+#: data's bounding-box diagonal.
+DEFAULT_PCT_DIAG = 1.0
 
 _COLUMNS = (
     ("degree", "d", "{:d}"),
     ("n_ctrl", "n", "{:d}"),
+    ("mean_deviation", "mean_dev", "{:.3e}"),
+    ("max_deviation", "max_dev", "{:.3e}"),
+    ("max_deviation_units", "max_dev(units)", "{:.3g}"),
     ("error", "error", "{:.3e}"),
     ("max_error", "max_error", "{:.3e}"),
-    ("rms_error", "rms_error", "{:.3e}"),
     ("error_pct_diag", "%diag", "{:.4f}"),
     ("bic", "bic", "{:.1f}"),
     ("iterations", "iters", "{:d}"),
@@ -94,31 +100,39 @@ class FitResult:
 
     @property
     def best(self) -> Curve:
-        """The solution with the lowest ``error``."""
-        return min(self.solutions, key=lambda c: math.inf if math.isnan(c.error) else c.error)
+        """The solution with the lowest two-sided ``mean_deviation``."""
+        return min(self.solutions, key=_mean_deviation)
 
-    def sparsest(
-        self, max_error_pct_diag: float = 0.35, *, max_error: float | None = None
-    ) -> Curve | None:
-        """The solution with the fewest control points that is good enough, or ``None``.
+    def sparsest(self, tolerance: float | None = None, *, pct_diag: float | None = None) -> Curve | None:
+        """The solution with the fewest control points whose curve stays within a
+        tolerance of the data, or ``None``.
 
-        Good enough: ``error_pct_diag <= max_error_pct_diag`` (default 0.35 %, the paper's
-        typical error) or, if given, ``error <= max_error`` (mean distance, normalised
-        frame) instead.  Ties on the count go to the lower error.
+        Within: ``max_deviation`` (the Hausdorff distance between the curve and the
+        polyline through the data, both ways) at most ``tolerance`` in the caller's units,
+        or at most ``pct_diag`` % of the data's bounding-box diagonal (default 1 %).  A
+        CAD tolerance is a bound on the largest deviation, as OpenCASCADE's approximation
+        takes one.  Ties on the count go to the lower ``mean_deviation``.
         """
-        if max_error is not None:
-            ok = [c for c in self.solutions if c.error <= max_error]
+        if tolerance is not None and pct_diag is not None:
+            raise ValueError("give tolerance (caller's units) or pct_diag, not both")
+        if tolerance is not None:
+            if not tolerance >= 0:
+                raise ValueError(f"tolerance must be a number >= 0, got {tolerance!r}")
+            ok = [c for c in self.solutions if c.max_deviation * self.scale <= tolerance]
         else:
-            ok = [c for c in self.solutions if c.error_pct_diag <= max_error_pct_diag]
-        return min(ok, key=lambda c: (c.n_ctrl, c.error)) if ok else None
+            pct_diag = DEFAULT_PCT_DIAG if pct_diag is None else pct_diag
+            if not pct_diag >= 0:
+                raise ValueError(f"pct_diag must be a number >= 0, got {pct_diag!r}")
+            ok = [c for c in self.solutions if c.max_deviation_pct_diag <= pct_diag]
+        return min(ok, key=lambda c: (c.n_ctrl, _mean_deviation(c))) if ok else None
 
     def knee(self, degree: int | None = None) -> Curve:
-        """The knee of the error-versus-control-points curve of one degree (default: the
-        best solution's): past it, more control points buy little.
+        """The knee of the deviation-versus-control-points curve of one degree (default:
+        the best solution's): past it, more control points buy little.
 
-        Kneedle's rule on ``log10(error)`` against ``n``, both scaled to [0, 1]: the count
-        furthest below the straight line from the fewest to the most control points.
-        Needs at least three counts of that degree.
+        Kneedle's rule on ``log10(mean_deviation)`` against ``n``, both scaled to [0, 1]:
+        the count furthest below the straight line from the fewest to the most control
+        points.  Needs at least three counts of that degree.
         """
         curves = self._of_degree(self.best.degree if degree is None else degree)
         if len(curves) < 3:
@@ -127,7 +141,7 @@ class FitResult:
                 f"got {len(curves)}"
             )
         n = np.array([c.n_ctrl for c in curves], dtype=np.float64)
-        e = np.log10(np.maximum([c.error for c in curves], 1e-300))
+        e = np.log10(np.maximum([_mean_deviation(c) for c in curves], 1e-300))
         x = (n - n[0]) / (n[-1] - n[0])
         span = e[0] - e[-1]
         y = (e - e[-1]) / span if span > 0 else np.zeros_like(e)
@@ -140,9 +154,12 @@ class FitResult:
         With Gaussian noise along the normal the orthogonal residuals give
         ``N log(RSS / N) + penalty * p``, ``p`` the curve's free numbers (``n D``, plus
         ``n - 1`` weights when rational; the foot-point parameters are the same for every
-        solution and cancel), penalty ``log N`` (BIC) or 2 (AIC).  Meaningful on noisy
-        data; on exact data RSS keeps falling to rounding and the choice is arbitrary.
-        ``degree`` restricts the choice to one degree.
+        solution and cancel), penalty ``log N`` (BIC) or 2 (AIC).  Both ways: ``RSS / N``
+        is the points' mean squared distance to the curve plus the curve's arc-length mean
+        squared distance to the data polyline, so a curve that leaves the data between
+        the points scores as badly as one that misses them.  Meaningful on noisy data; on
+        exact data RSS keeps falling to rounding and the choice is arbitrary.  ``degree``
+        restricts the choice to one degree.
         """
         if criterion not in ("bic", "aic"):
             raise ValueError(f"criterion must be 'bic' or 'aic', got {criterion!r}")
@@ -175,7 +192,9 @@ class FitResult:
         return iter(self.solutions)
 
     def table(self) -> Table:
-        """One row per solution: degree, n_ctrl, error, max_error, rms_error,
+        """One row per solution: degree, n_ctrl, the two-sided mean_deviation and
+        max_deviation (normalised frame; max_deviation_units in the caller's, and as
+        max_deviation_pct_diag), the one-sided error, max_error, rms_error,
         error_pct_diag, aic, bic (see :meth:`select`), iterations, ..."""
         rows = Table()
         for c in self.solutions:
@@ -185,6 +204,10 @@ class FitResult:
                     "n_ctrl": c.n_ctrl,
                     "closed": c.closed,
                     "rational": c.rational,
+                    "mean_deviation": c.mean_deviation,
+                    "max_deviation": c.max_deviation,
+                    "max_deviation_units": c.max_deviation * self.scale,
+                    "max_deviation_pct_diag": c.max_deviation_pct_diag,
                     "error": c.error,
                     "max_error": c.max_error,
                     "rms_error": c.rms_error,
@@ -199,7 +222,8 @@ class FitResult:
         b = self.best
         return (
             f"FitResult({len(self.solutions)} solutions, {len(self.points)} points, "
-            f"best: degree {b.degree}, n={b.n_ctrl}, error={b.error:.3g}; "
+            f"best: degree {b.degree}, n={b.n_ctrl}, mean_deviation={b.mean_deviation:.3g}, "
+            f"max_deviation={b.max_deviation:.3g}; "
             f"stopped on {self.stop_reason})"
         )
 
@@ -208,10 +232,17 @@ class FitResult:
         return (np.asarray(points, dtype=np.float64) - self.center) / self.scale
 
 
+def _mean_deviation(curve: Curve) -> float:
+    """The ranking key of a solution: its two-sided mean (``nan`` ranks last)."""
+    return math.inf if math.isnan(curve.mean_deviation) else curve.mean_deviation
+
+
 def _criteria(curve: Curve, num_points: int) -> dict[str, float]:
-    """AIC and BIC of a solution from its RMS orthogonal residual (see FitResult.select)."""
+    """AIC and BIC of a solution from its two-sided mean squared distance (see
+    FitResult.select)."""
     p = curve.n_ctrl * curve.dim + (curve.n_ctrl - 1 if curve.rational else 0)
-    rss = num_points * curve.rms_error**2
+    strays = curve.info.get("rms_excursion", 0.0)
+    rss = num_points * (curve.rms_error**2 + strays**2)
     fit_term = (
         num_points * math.log(max(rss / num_points, 1e-300)) if not math.isnan(rss) else math.inf
     )

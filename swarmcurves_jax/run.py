@@ -89,9 +89,15 @@ SCHEMA = {
     ),
     "seed": (0, "int>=0", "random seed"),
     "select_pct_diag": (
-        0.35,
+        1.0,
         "float>0",
-        "tolerance for 'sparsest': mean error as % of the bounding-box diagonal",
+        "tolerance for 'sparsest': largest deviation between curve and data (both ways) "
+        "as % of the bounding-box diagonal",
+    ),
+    "select_tolerance": (
+        None,
+        "float>0?",
+        "tolerance for 'sparsest' in the points' units instead (largest deviation)",
     ),
     "out": (None, "str?", "output folder (nothing is written without one)"),
     "figures": (["best", "error_vs_cps"], FIGURES, "PNG figures to write: " + ", ".join(FIGURES)),
@@ -393,6 +399,20 @@ def planned_files(cfg, pairs) -> list[str]:
     return files
 
 
+def _sparsest(cfg, result):
+    """The config's 'sparsest': by ``select_tolerance`` (points' units) if given, else by
+    ``select_pct_diag``."""
+    if cfg["select_tolerance"] is not None:
+        return result.sparsest(cfg["select_tolerance"])
+    return result.sparsest(pct_diag=cfg["select_pct_diag"])
+
+
+def _tolerance_text(cfg) -> str:
+    if cfg["select_tolerance"] is not None:
+        return f"{cfg['select_tolerance']} (points' units)"
+    return f"{cfg['select_pct_diag']} % of the diagonal"
+
+
 def format_table(result, sparsest) -> str:
     lines = str(result.table()).splitlines()
     marks = [""] + [
@@ -454,7 +474,7 @@ def _write_figures(cfg, result, points, out: Path) -> list[Path]:
         return out / name
 
     written = []
-    chosen = {"best": result.best, "sparsest": result.sparsest(cfg["select_pct_diag"])}
+    chosen = {"best": result.best, "sparsest": _sparsest(cfg, result)}
     for fig_name in cfg["figures"]:
         if fig_name in chosen and chosen[fig_name] is not None:
             written.append(save(plot_solution(chosen[fig_name], points), f"{fig_name}.png"))
@@ -551,15 +571,17 @@ def main(argv=None) -> int:
         f"{len(result.points)} points from {label}, {'closed' if closed else 'open'}; "
         f"stopped on {why} after {result.wall_time:.1f} s"
     )
-    sparsest = result.sparsest(cfg["select_pct_diag"])
+    sparsest = _sparsest(cfg, result)
     print(format_table(result, sparsest))
     best = result.best
     print(
-        f"best: degree {best.degree}, {best.n_ctrl} control points, mean error {best.error:.3e} "
-        f"({best.error_pct_diag:.4f} % of the bounding-box diagonal)"
+        f"best: degree {best.degree}, {best.n_ctrl} control points, mean deviation "
+        f"{best.mean_deviation:.3e}, largest deviation {best.max_deviation * result.scale:.4g} "
+        f"in the points' units ({best.max_deviation_pct_diag:.4f} % of the bounding-box "
+        f"diagonal); mean error {best.error:.3e}"
     )
     if sparsest is None:
-        print(f"sparsest within {cfg['select_pct_diag']} % of the diagonal: none")
+        print(f"sparsest within {_tolerance_text(cfg)}: none")
     if out is not None:
         for path in write_outputs(cfg, result, np.asarray(result.points), out):
             print(f"wrote {path}")
@@ -573,10 +595,13 @@ SUMMARY_COLUMNS = (
     "closed",
     "best_degree",
     "best_n",
+    "best_mean_deviation",
+    "best_max_deviation",
     "best_error",
     "best_pct_diag",
     "sparsest_degree",
     "sparsest_n",
+    "sparsest_max_deviation",
     "sparsest_error",
     "stop_reason",
     "bucket",
@@ -591,17 +616,20 @@ def slug(label: str) -> str:
 
 
 def summary_row(cfg, label, closed, result) -> dict:
-    best, sparsest = result.best, result.sparsest(cfg["select_pct_diag"])
+    best, sparsest = result.best, _sparsest(cfg, result)
     return {
         "input": label,
         "points": len(result.points),
         "closed": closed,
         "best_degree": best.degree,
         "best_n": best.n_ctrl,
+        "best_mean_deviation": f"{best.mean_deviation:.6e}",
+        "best_max_deviation": f"{best.max_deviation:.6e}",
         "best_error": f"{best.error:.6e}",
         "best_pct_diag": f"{best.error_pct_diag:.6f}",
         "sparsest_degree": "" if sparsest is None else sparsest.degree,
         "sparsest_n": "" if sparsest is None else sparsest.n_ctrl,
+        "sparsest_max_deviation": "" if sparsest is None else f"{sparsest.max_deviation:.6e}",
         "sparsest_error": "" if sparsest is None else f"{sparsest.error:.6e}",
         "stop_reason": result.stop_reason,
         "bucket": result.batch["bucket"],

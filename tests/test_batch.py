@@ -160,7 +160,7 @@ SPLIT = [
         degrees=(2, 3),
         iterations=400,
         particles=16,
-        tol=1.4e-2,
+        tol=2.415e-2,
         chunk_size=50,
         refine=False,
     ),

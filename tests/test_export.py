@@ -101,7 +101,7 @@ def test_npz_and_json_round_trip(tmp_path):
         (lambda d: d["solutions"][1].pop("knots"), "solution 1 is damaged: .*missing key"),
         (lambda d: d["solutions"][0].update(weights=[1, -1, 1, 1, 1, 1]), "solution 0 is damaged"),
         (lambda d: d["solutions"][0].update(degree=9), "solution 0 is damaged"),
-        (lambda d: d["solutions"][2].update(schema_version=2), "solution 2 is damaged"),
+        (lambda d: d["solutions"][2].update(schema_version=3), "solution 2 is damaged"),
         (lambda d: d.pop("solutions"), "no 'solutions' list"),
     ],
 )

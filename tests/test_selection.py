@@ -27,14 +27,21 @@ def test_criteria_and_knee_find_the_true_count(six_point_cubic):
     assert int(np.argmin(bic)) == 2  # n = 6
 
 
-def test_sparsest_by_absolute_or_relative_error(six_point_cubic):
+def test_sparsest_by_a_tolerance_on_the_largest_deviation(six_point_cubic):
+    """A CAD tolerance: the largest deviation between curve and data, both ways, in the
+    points' units or as % of the diagonal."""
     result = six_point_cubic
-    errors = {c.n_ctrl: c.error for c in result}
-    assert errors[6] < 0.01 < errors[5]
-    assert result.sparsest(max_error=0.01).n_ctrl == 6
-    assert result.sparsest(max_error=1e-12) is None
-    pct = result[3, 6].error_pct_diag
-    assert result.sparsest(max_error_pct_diag=pct).n_ctrl == 6
+    worst = {c.n_ctrl: c.max_deviation * result.scale for c in result}
+    assert worst[6] < worst[5] and worst[6] < worst[4]
+    assert result.sparsest(worst[6]).n_ctrl == 6
+    assert result.sparsest(0.999 * min(worst.values())) is None
+    pct = result[3, 6].max_deviation_pct_diag
+    assert result.sparsest(pct_diag=pct).n_ctrl == 6
+    assert result.best.mean_deviation == min(c.mean_deviation for c in result)
+    with pytest.raises(ValueError, match="give tolerance .* or pct_diag, not both"):
+        result.sparsest(1.0, pct_diag=1.0)
+    with pytest.raises(ValueError, match="tolerance must be a number >= 0, got -1"):
+        result.sparsest(-1)
 
 
 def test_selection_errors_name_what_was_expected(six_point_cubic):

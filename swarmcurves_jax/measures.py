@@ -1,0 +1,116 @@
+"""Two-sided measures of a fit: does the curve stay with the data, both ways?
+
+The one-sided ``error`` (data point -> curve) cannot see a stretch of curve that no data
+point projects onto: a loop or a spike between two samples.  So every fit is also measured
+the other way, every point of the curve -> the polyline ``L`` through the data in order (a
+closed polygon for a closed curve), and judged by both:
+
+* ``max_deviation``: the Hausdorff distance between the curve and ``L``,
+  ``max(max_i dist(x_i, C), max_t dist(C(t), L))``;
+* ``mean_deviation``: ``(error + arc-length mean over t of dist(C(t), L)) / 2``.
+
+``L``'s own chord error (the sagitta of the data between two samples) is part of the
+curve -> polyline distance: small for dense data.  Float64 NumPy, on the host.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .projection import curve_derivatives, dense_parameters, distance_to_polyline
+
+__all__ = ["Deviations", "curve_polyline", "data_polyline", "deviations", "excursions"]
+
+#: Initial samples per knot span of the curve; then refined where the curve bends or
+#: runs fast (:func:`curve_polyline`).
+SAMPLES_PER_SPAN = 64
+#: The refined sampling's chords are at most this fraction of the data's median spacing
+#: and turn by at most this many radians: the sampled maximum of a 1-Lipschitz distance
+#: is then within an eighth of a data spacing of the true one (far less where it is smooth).
+CHORD_FRACTION, MAX_TURN = 0.25, 0.05
+#: Most samples of one curve (a huge excursion is still measured, only more coarsely).
+MAX_SAMPLES = 200_000
+
+
+class Deviations(NamedTuple):
+    """Both directions of a fit's distance to its data (the frame of the inputs)."""
+
+    max_deviation: float  # Hausdorff distance between curve and data polyline
+    mean_deviation: float  # (mean data -> curve + arc-length mean curve -> polyline) / 2
+    max_excursion: float  # max over the curve of its distance to the data polyline
+    mean_excursion: float  # arc-length mean of the same
+    rms_excursion: float  # arc-length root mean square of the same
+
+
+def data_polyline(points: np.ndarray, closed: bool) -> np.ndarray:
+    """The vertices of the polyline through the data in order (closed: back to the first)."""
+    points = np.asarray(points, dtype=np.float64)
+    return np.vstack([points, points[:1]]) if closed else points
+
+
+def _median_spacing(points: np.ndarray, closed: bool) -> float:
+    seg = np.linalg.norm(np.diff(data_polyline(points, closed), axis=0), axis=1)
+    seg = seg[seg > 0]
+    return float(np.median(seg)) if len(seg) else 1.0
+
+
+def curve_polyline(ctrl, weights, t, k, closed, spacing: float) -> np.ndarray:
+    """The curve densely sampled, in order (M, D): :data:`SAMPLES_PER_SPAN` per knot span,
+    then every interval whose chord is longer than ``CHORD_FRACTION * spacing`` or whose
+    neighbouring chords turn by more than :data:`MAX_TURN` split, up to three rounds."""
+    u = dense_parameters(np.asarray(t, dtype=np.float64), SAMPLES_PER_SPAN)
+    pts = None
+    for _ in range(4):
+        pts = curve_derivatives(u, ctrl, weights, t, k, closed, max_nu=0)[0]
+        chord = np.diff(pts, axis=0)
+        length = np.linalg.norm(chord, axis=1)
+        pieces = np.ceil(length / (CHORD_FRACTION * spacing))
+        if len(chord) > 1:
+            unit = chord / np.maximum(length, 1e-300)[:, None]
+            turn = np.arccos(np.clip(np.sum(unit[1:] * unit[:-1], axis=1), -1.0, 1.0))
+            bend = np.ceil(turn / MAX_TURN)
+            pieces = np.maximum(pieces, np.maximum(np.r_[bend, 1.0], np.r_[1.0, bend]))
+        pieces = np.clip(pieces, 1, 64).astype(np.int64)
+        if np.all(pieces == 1) or len(u) + np.sum(pieces - 1) > MAX_SAMPLES:
+            break
+        steps = np.repeat(np.diff(u) / pieces, pieces)
+        starts = np.repeat(u[:-1], pieces)
+        offsets = np.arange(len(steps)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+        u = np.append(starts + offsets * steps, u[-1])
+    return pts
+
+
+def excursions(points, ctrl, weights, t, k, closed) -> tuple[float, float, float]:
+    """``(max, arc-length mean, arc-length RMS)`` over the curve of its distance to the
+    data polyline."""
+    points = np.asarray(points, dtype=np.float64)
+    samples = curve_polyline(ctrl, weights, t, k, closed, _median_spacing(points, closed))
+    if len(points) < 2:
+        d = np.linalg.norm(samples - points[:1], axis=1)
+    else:
+        d = distance_to_polyline(samples, data_polyline(points, closed))
+    arc = np.linalg.norm(np.diff(samples, axis=0), axis=1)
+    total = float(np.sum(arc))
+    if total > 0:
+        mean = float(np.sum(0.5 * (d[1:] + d[:-1]) * arc) / total)
+        rms = math.sqrt(float(np.sum(0.5 * (d[1:] ** 2 + d[:-1] ** 2) * arc) / total))
+    else:
+        mean = rms = float(d[0])
+    return float(np.max(d)), mean, rms
+
+
+def deviations(points, ctrl, weights, t, k, closed, data_distances) -> Deviations:
+    """The two-sided measures of a curve (``ctrl`` in the frame of ``points``), given its
+    data -> curve distances ``data_distances`` (N,) (:func:`~.projection.project_points`)."""
+    far, mean, rms = excursions(points, ctrl, weights, t, k, closed)
+    dist = np.asarray(data_distances, dtype=np.float64)
+    return Deviations(
+        max_deviation=max(float(np.max(dist)), far),
+        mean_deviation=0.5 * (float(np.mean(dist)) + mean),
+        max_excursion=far,
+        mean_excursion=mean,
+        rms_excursion=rms,
+    )

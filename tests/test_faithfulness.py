@@ -1,0 +1,62 @@
+"""Fits stay with the data both ways: no loops, spikes or excursions between the points."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from swarmcurves_jax import fit, normalise
+from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
+from swarmcurves_jax.fitness import data_polyline
+
+
+def largest_allowance(points: np.ndarray, closed: bool) -> float:
+    """The most the fitness lets a curve stray from any segment of the data polyline
+    unpenalised: the sagitta its turning allows, a tenth of it, and the data's scatter
+    (:data:`swarmcurves_jax.fitness.ALLOWANCE_BASE`)."""
+    line = data_polyline(jnp.asarray(points), jnp.ones(len(points)), closed)
+    a2 = np.asarray(line.allowance2)
+    return float(np.sqrt(np.max(a2[np.isfinite(a2)])))
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=list(HealthCheck))
+@given(
+    n=st.integers(5, 8),
+    closed=st.booleans(),
+    dim=st.sampled_from([2, 3]),
+    sigma=st.sampled_from([0.0, 0.01]),
+    seed=st.integers(0, 10_000),
+)
+def test_every_solution_stays_within_its_error_plus_the_polylines_allowance(
+    n, closed, dim, sigma, seed
+):
+    """The bound: every point of every solution lies within ``2 max_error + A`` of the
+    data polyline, ``A`` its largest allowance.  A curve through every point within
+    ``max_error`` that runs along the data in order lies within ``max_error`` of the
+    curve the data sample, which lies within ``A`` of the polyline; twice the error leaves
+    room for a curve that crosses between two points.  A loop or a spike breaks it."""
+    pts, _ = random_bspline_points(n, 3, closed, num_points=120, dim=dim, seed=seed)
+    norm, center, scale = normalise(pts)
+    if sigma and dim == 2:
+        norm = normal_noise(norm, sigma, seed=seed, closed=closed)
+    elif sigma:
+        norm = norm + np.random.default_rng(seed).normal(0.0, sigma, norm.shape)
+    result = fit(norm, cps=[n - 1, n, n + 1], closed=closed, iterations=300, seed=seed)
+    bound_extra = largest_allowance(result.normalised(result.points), closed)
+    for c in result:
+        bound = 2 * c.max_error + bound_extra
+        assert c.info["max_excursion"] <= bound, (c, bound)
+        assert c.max_deviation == pytest.approx(max(c.max_error, c.info["max_excursion"]))
+
+
+@pytest.mark.parametrize("name,n", [("f1", 11), ("f2", 19)])
+def test_the_polish_leaves_no_spike_on_table_1(name, n):
+    """The paper's f1 at 11 and f2 at 19 control points, defaults: the polish used to send
+    a stretch of curve out of the frame between two samples (largest deviation 0.28 and
+    6.8 half-extents) because the data error fell.  Now every point of the curve stays
+    within a few hundredths of the data."""
+    result = fit(analytic_points(name), cps=[n], seed=0)
+    c = result.solutions[0]
+    assert c.max_deviation < 0.03, c
+    assert c.mean_deviation < 3 * c.error + 1e-3, c

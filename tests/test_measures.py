@@ -1,0 +1,108 @@
+"""The two-sided measures (host) and the excursion penalty (device) on curves whose answers
+are known in closed form."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from swarmcurves_jax import Curve
+from swarmcurves_jax.fitness import data_polyline as device_polyline
+from swarmcurves_jax.fitness import excursion, make_span_basis, curve_samples
+from swarmcurves_jax.knots import make_knots
+from swarmcurves_jax.measures import curve_polyline, deviations, excursions
+from swarmcurves_jax.projection import distance_to_polyline, project_points
+
+
+def _measure(curve: Curve, points):
+    dist, _ = project_points(
+        points, curve.control_points, curve.weights, curve.knots, curve.degree, curve.closed
+    )
+    return dist, deviations(
+        points, curve.control_points, curve.weights, curve.knots, curve.degree, curve.closed, dist
+    )
+
+
+def test_a_spike_between_two_points_is_seen_only_both_ways():
+    """A polygon through both data points with a corner 5 above the middle: the data error
+    is 0, the largest deviation is the corner's height."""
+    spike = Curve(1, [[0, 0], [0.5, 5], [1, 0]], np.ones(3), make_knots(3, 1, False))
+    points = np.array([[0.0, 0.0], [1.0, 0.0]])
+    dist, dev = _measure(spike, points)
+    assert np.max(dist) < 1e-12
+    assert dev.max_deviation == pytest.approx(5.0, abs=1e-9)
+    assert dev.max_excursion == pytest.approx(5.0, abs=1e-9)
+    # arc-length mean of the height along the two legs of the tent: half the corner's
+    assert dev.mean_excursion == pytest.approx(2.5, rel=1e-6)
+    assert dev.mean_deviation == pytest.approx(1.25, rel=1e-6)
+
+
+def test_a_parabola_over_its_chord_has_the_exact_deviations():
+    """The quadratic Bezier (0,0), (1/2,h), (1,0) over data on its chord: height y(x) =
+    2h x (1 - x), largest h/2; its arc-length mean height by quadrature."""
+    h = 0.2
+    arc = Curve(2, [[0, 0], [0.5, h], [1, 0]], np.ones(3), make_knots(3, 2, False))
+    points = np.c_[np.linspace(0, 1, 101), np.zeros(101)]
+    dist, dev = _measure(arc, points)
+    assert dev.max_deviation == pytest.approx(h / 2, rel=1e-6)
+    t = np.linspace(0, 1, 400_001)
+    xy = arc.evaluate(t)
+    ds = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    mean_height = np.sum(0.5 * (xy[1:, 1] + xy[:-1, 1]) * ds) / np.sum(ds)
+    # the measure's chords are at most a quarter of the data spacing: trapezoids to 1e-5
+    assert dev.mean_excursion == pytest.approx(mean_height, rel=2e-5)
+    assert dev.mean_deviation == pytest.approx(0.5 * (dist.mean() + mean_height), rel=2e-5)
+
+
+def test_a_closed_curve_is_measured_against_the_closed_polygon():
+    """A circle-like closed cubic on its own dense samples: the closing chord is part of
+    the polygon, so the curve never strays more than the sagitta of one chord."""
+    angles = np.linspace(0, 2 * np.pi, 9)[:-1]
+    ctrl = np.c_[np.cos(angles), np.sin(angles)]
+    ring = Curve(3, ctrl, np.ones(8), make_knots(8, 3, True), closed=True)
+    points = ring.evaluate(np.linspace(0, 1, 400, endpoint=False))
+    _, dev = _measure(ring, points)
+    step = np.max(np.linalg.norm(np.diff(np.vstack([points, points[:1]]), axis=0), axis=1))
+    assert dev.max_excursion < step**2  # sagitta h^2 / (8 r), r < 1
+    # a tenth of the ring without data: the closing chord spans it, within its sagitta
+    # (r (1 - cos 18 deg) < 0.05), where an open polyline would leave the arc bare
+    gap = points[:-40]
+    _, gap_dev = _measure(ring, gap)
+    assert 0.02 < gap_dev.max_excursion < 0.05
+    dense = curve_polyline(ring.control_points, ring.weights, ring.knots, 3, True, 0.01)
+    assert np.max(distance_to_polyline(dense, gap)) > 0.1
+
+
+def test_the_dense_sampling_follows_a_fast_stretch():
+    """A curve whose middle control point is far away: the refinement splits the long
+    chords, so no chord is longer than a quarter of the data's spacing."""
+    far = Curve(2, [[0, 0], [0.5, 50], [1, 0]], np.ones(3), make_knots(3, 2, False))
+    samples = curve_polyline(far.control_points, far.weights, far.knots, 2, False, 0.01)
+    chords = np.linalg.norm(np.diff(samples, axis=0), axis=1)
+    assert chords.max() <= 0.0025 * (1 + 1e-9)
+    far_max, _, _ = excursions(np.array([[0.0, 0.0], [1.0, 0.0]]), far.control_points,
+                               far.weights, far.knots, 2, False)
+    assert far_max == pytest.approx(25.0, rel=1e-6)
+
+
+def _penalty(curve: Curve, points, closed, pad=0):
+    pts = np.vstack([points, np.repeat(points[-1:], pad, axis=0)])
+    mask = np.r_[np.ones(len(points)), np.zeros(pad)]
+    basis = make_span_basis(curve.n_ctrl, curve.degree, closed, 64)
+    basis = type(basis)(*(jnp.asarray(a) for a in basis))
+    line = device_polyline(jnp.asarray(pts), jnp.asarray(mask), closed)
+    samples, tangents = curve_samples(jnp.asarray(curve.control_points), None, basis)
+    return float(excursion(samples, tangents, basis, line))
+
+
+def test_the_penalty_is_zero_on_the_curve_the_data_sample_and_sees_a_spike():
+    rng = np.random.default_rng(3)
+    for closed in (False, True):
+        n = 7
+        truth = Curve(3, rng.uniform(-1, 1, (n, 2)), np.ones(n), make_knots(n, 3, closed), closed=closed)
+        points = truth.evaluate(np.linspace(0, 1, 150, endpoint=not closed))
+        assert _penalty(truth, points, closed) < 1e-12  # sqrt(0 + 1e-30)
+        assert _penalty(truth, points, closed, pad=10) < 1e-12  # padding is no segment
+        bent = truth.control_points.copy()
+        bent[3] += [3.0, 3.0]
+        spiked = Curve(3, bent, np.ones(n), truth.knots, closed=closed)
+        assert _penalty(spiked, points, closed) > 0.1
