@@ -40,7 +40,7 @@ from swarmcurves_jax import Curve, fit  # noqa: E402
 from swarmcurves_jax.datasets import ANALYTIC, read_outlines  # noqa: E402
 from swarmcurves_jax.fit import least_squares_ctrl, normalise  # noqa: E402
 from swarmcurves_jax.knots import make_knots  # noqa: E402
-from swarmcurves_jax.measures import deviations  # noqa: E402
+from swarmcurves_jax.measures import data_polyline, deviations  # noqa: E402
 from swarmcurves_jax.paper import TABLE1, TRUTH_SAMPLES, arc_length_samples  # noqa: E402
 from swarmcurves_jax.projection import distance_to_polyline, project_points  # noqa: E402
 
@@ -56,8 +56,8 @@ def truth_distances(curve: Curve, truth: np.ndarray, closed: bool) -> tuple[floa
     dense = curve.evaluate(np.linspace(0.0, 1.0, 4 * TRUTH_SAMPLES, endpoint=not closed))
     a = arc_length_samples(dense, TRUTH_SAMPLES, closed)
     b = arc_length_samples(truth, TRUTH_SAMPLES, closed)
-    loop = (lambda p: np.vstack([p, p[:1]])) if closed else (lambda p: p)
-    ab, ba = distance_to_polyline(a, loop(b)), distance_to_polyline(b, loop(a))
+    ab = distance_to_polyline(a, data_polyline(b, closed))
+    ba = distance_to_polyline(b, data_polyline(a, closed))
     return 0.5 * float(ab.mean() + ba.mean()), float(max(ab.max(), ba.max()))
 
 
@@ -255,6 +255,13 @@ def draw_outlines(rows, path: Path) -> Path:
     return path
 
 
+#: Each part of the report: how it runs, its lines, its figure.
+PARTS = {
+    "table1": (run_table1, table1_lines, draw_table1),
+    "outlines": (run_outlines, outline_lines, draw_outlines),
+}
+
+
 def json_safe(rows) -> list[dict]:
     skip = ("curve", "curves", "points", "truth")
     return [{k: v for k, v in r.items() if k not in skip} for r in rows]
@@ -272,18 +279,14 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     lines = [f"# Faithfulness (seed {args.seed}, {args.iterations} iterations)", ""]
     report = {"settings": vars(args) | {"out": str(args.out)}}
-    if args.only in (None, "table1"):
-        rows = run_table1(args)
-        lines += table1_lines(rows)
-        report["table1"] = json_safe(rows)
+    for part, (run, summary, draw) in PARTS.items():
+        if args.only not in (None, part):
+            continue
+        rows = run(args)
+        lines += summary(rows)
+        report[part] = json_safe(rows)
         if not args.no_figures:
-            lines.append(f"Figure: {draw_table1(rows, args.out / 'table1.png').name}\n")
-    if args.only in (None, "outlines"):
-        rows = run_outlines(args)
-        lines += outline_lines(rows)
-        report["outlines"] = json_safe(rows)
-        if not args.no_figures:
-            lines.append(f"Figure: {draw_outlines(rows, args.out / 'outlines.png').name}\n")
+            lines.append(f"Figure: {draw(rows, args.out / f'{part}.png').name}\n")
     text = "\n".join(lines)
     print(text)
     (args.out / "report.md").write_text(text + "\n")

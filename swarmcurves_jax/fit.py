@@ -39,7 +39,7 @@ from .fitness import (
     Polyline,
     SpanBasis,
     curve_samples,
-    data_polyline,
+    data_segments,
     excursion,
     foot_samples,
     free_knot_basis,
@@ -324,7 +324,7 @@ def _swarm_program(
     def one_curve(shared, key_data, draws, state, feet, boxes, seeds, points, mask):
         (pairs, params, bases, tol, max_steps), first = shared
         count = jnp.sum(mask)
-        polyline = data_polyline(points, mask, space.closed)
+        polyline = data_segments(points, mask, space.closed)
 
         def start(draw, state, box, seed):
             """The swarm's state, fresh where it has not started."""
@@ -430,7 +430,7 @@ def _refine_program(
     def one_curve(shared, state, boxes, seeds, points, mask):
         pairs, bases = shared
         holdout = (jnp.arange(points.shape[0]) % local.HOLDOUT_EVERY == 2) * mask
-        polyline = data_polyline(points, mask, space.closed)
+        polyline = data_segments(points, mask, space.closed)
         count = jnp.sum(mask)
 
         def one_swarm(pair, state, box, seed, basis, k):

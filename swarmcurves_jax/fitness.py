@@ -48,7 +48,7 @@ __all__ = [
     "foot_samples",
     "point_distances",
     "Polyline",
-    "data_polyline",
+    "data_segments",
     "sample_excursions",
     "excursion",
     "NEWTON_STEPS",
@@ -654,7 +654,7 @@ class Polyline(NamedTuple):
 ALLOWANCE_BASE = 0.1
 
 
-def data_polyline(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
+def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
     """The :class:`Polyline` through the real points (``mask`` 1; padding after them), in
     order, back to the first for a ``closed`` curve."""
     size = points.shape[0]

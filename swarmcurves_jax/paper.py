@@ -26,6 +26,7 @@ from .datasets import (
 )
 from .fit import fit, normalise
 from .knots import make_knots
+from .measures import data_polyline
 from .projection import distance_to_polyline, project_points
 from .results import FitResult
 
@@ -114,7 +115,7 @@ def _to_polyline(points: np.ndarray, polyline: np.ndarray, closed: bool) -> np.n
     """Exact distance from every point to a polyline (closed: back to its first vertex):
     the segments beside a point's few nearest vertices can miss its nearest segment where
     other vertices crowd in."""
-    return distance_to_polyline(points, np.vstack([polyline, polyline[:1]]) if closed else polyline)
+    return distance_to_polyline(points, data_polyline(polyline, closed))
 
 
 def symmetric_distance(a: np.ndarray, b: np.ndarray, closed: bool = False) -> float:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from swarmcurves_jax import Curve
-from swarmcurves_jax.fitness import data_polyline as device_polyline
+from swarmcurves_jax.fitness import data_segments
 from swarmcurves_jax.fitness import excursion, make_span_basis, curve_samples
 from swarmcurves_jax.knots import make_knots
 from swarmcurves_jax.measures import curve_polyline, deviations, excursions
@@ -89,7 +89,7 @@ def _penalty(curve: Curve, points, closed, pad=0):
     mask = np.r_[np.ones(len(points)), np.zeros(pad)]
     basis = make_span_basis(curve.n_ctrl, curve.degree, closed, 64)
     basis = type(basis)(*(jnp.asarray(a) for a in basis))
-    line = device_polyline(jnp.asarray(pts), jnp.asarray(mask), closed)
+    line = data_segments(jnp.asarray(pts), jnp.asarray(mask), closed)
     samples, tangents = curve_samples(jnp.asarray(curve.control_points), None, basis)
     return float(excursion(samples, tangents, basis, line))
 
