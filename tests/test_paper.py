@@ -119,9 +119,10 @@ def test_plot_result_draws_the_paper_layout():
     curve = result[2, 5]
     fig = plot_result(result, curve, true_control_points=curve.control_points, title="t")
     curve_ax, colour_bar, polygon_ax, error_ax = fig.axes
-    assert colour_bar.get_ylabel() == "distance of the data to the curve"
+    assert colour_bar.get_ylabel() == "distance between curve and data, both ways"
     assert "5 control points" in curve_ax.get_title()
+    assert f"max deviation {curve.max_deviation_pct_diag:.3g} % of diagonal" in curve_ax.get_title()
     assert [ln.get_label() for ln in polygon_ax.get_lines()][:2] == ["fitted", "true"]
     assert [ln.get_label() for ln in error_ax.get_lines()][:2] == ["degree 2", "degree 3"]
     ringed = error_ax.get_lines()[-1]
-    assert list(ringed.get_xdata()) == [5] and ringed.get_ydata()[0] == curve.error
+    assert list(ringed.get_xdata()) == [5] and ringed.get_ydata()[0] == curve.mean_deviation
