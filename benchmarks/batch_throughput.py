@@ -1,4 +1,4 @@
-"""Throughput of ``fit_many`` against a loop of ``fit`` and a process pool (issue 8).
+"""Throughput of ``fit_many`` against a loop of ``fit`` and a process pool.
 
     python benchmarks/batch_throughput.py [--iterations 200] [--sizes 1,10,100,1000]
                                           [--skip pool,sharding] [--out DIR]

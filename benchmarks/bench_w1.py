@@ -1,10 +1,10 @@
-"""Workload W1 of SPEC §5: f4 data (N = 200), degrees {1, 2, 3}, cps 4-10 (21 swarms),
+"""Workload W1: f4 data (N = 200), degrees {1, 2, 3}, cps 4-10 (21 swarms),
 64 particles, 2000 iterations, float32.
 
     python benchmarks/bench_w1.py [--iterations 2000] [--repeats 3] [--refine lm]
                                   [--cpu-devices N] [--search-every N] [--workload w64]
 
-``--workload w64`` is issue 6's GPU workload on the same data: degrees {2, 3, 4, 5} x cps
+``--workload w64`` is the GPU workload on the same data: degrees {2, 3, 4, 5} x cps
 10-25 (64 swarms) x 512 particles, 2000 iterations (24x W1's particles, at costlier degrees).
 
 W1 is the swarm alone (``refine=False``), the workload peers are compared on; ``--refine lm``
@@ -69,7 +69,7 @@ def matmul_flops(size: int = 4096, repeats: int = 2) -> float:
     GPU too, whose default is TF32), the best of ``repeats`` calls after one that compiles.
     A gauge of the machine's window: on this shared machine the same W1 code's CPU time
     moves by 30 % and more between windows, and this product's speed with it, though not in
-    proportion (README, "Speed (issue 6)", "The machine")."""
+    proportion (docs/performance.md, "The machine")."""
     a = jax.random.normal(jax.random.key(0), (size, size), jnp.float32)
     product = jax.jit(lambda x: jnp.matmul(x, x, precision="highest"))
     jax.block_until_ready(product(a))

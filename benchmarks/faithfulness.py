@@ -5,7 +5,7 @@
 
 Two parts, each printing its targets as met or missed (cubic, ``fit``'s defaults otherwise):
 
-* **Table 1** (SPEC §4): f1-f5, 200 points, fitted with ``cps=range(4, 20)``.  At the
+* **Table 1** (the paper's): f1-f5, 200 points, fitted with ``cps=range(4, 20)``.  At the
   paper's counts (f1 and f3 at 11, f2 at 19; f4 and f5 the best at <= 19) it prints the
   data error, both two-sided measures, and the symmetric mean distance and Hausdorff
   distance to the true curve.  Targets: symmetric distance <= 2 x data error, data error

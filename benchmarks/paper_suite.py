@@ -1,4 +1,4 @@
-"""Every experiment of the SwarmCurves paper (SPEC §4): one report and one figure per case.
+"""Every experiment of the SwarmCurves paper: one report and one figure per case.
 
     python benchmarks/paper_suite.py [--iterations 2000] [--cases PREFIX ...]
                                      [--data-dir DIR] [--out DIR] [--no-figures]
@@ -229,7 +229,7 @@ def markdown(runs, notes, settings, elapsed) -> str:
         f"{settings['particles']} particles, seed {settings['seed']}, refinement on; "
         f"{len(runs)} cases, {len(rows)} solutions, {elapsed / 60:.1f} min on "
         f"{settings['machine']}. Errors are mean orthogonal distances in the normalised frame "
-        "(SPEC §1); 'vs clean' measures the clean dense data against the fit of noisy or "
+        "(the data's bounding box centred and scaled into [-1, 1], aspect kept); 'vs clean' measures the clean dense data against the fit of noisy or "
         "sparse data; 'sym. dist.' is the symmetric mean distance to the ground truth "
         "(10,000 arc-length samples each).",
         "",

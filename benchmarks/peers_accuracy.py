@@ -3,9 +3,12 @@
     python benchmarks/peers_accuracy.py [--iterations 2000] [--quick] [--cases f,random]
                                         [--data-dir DIR] [--out DIR]
 
-What it measures: the mean point-to-curve error of SPEC §1 (`error`: mean true orthogonal
-distance, in the normalised frame) of cubic curves with the same number n of control points,
-fitted by
+What it measures, for cubic curves with the same number n of control points (normalised
+frame): the one-sided ``error`` (mean true orthogonal distance from the data to the curve)
+and the two-sided measures of ``swarmcurves_jax.measures``: ``mean_deviation`` (the mean of
+``error`` and of the arc-length mean distance from the curve to the data polyline) and
+``max_deviation`` (the Hausdorff distance between the curve and the data polyline).  The
+curves are fitted by
 
 - scipy LSQ (chord): ``make_lsq_spline`` on cumulative chord-length parameters and the clamped
   uniform knots of ``swarmcurves_jax.knots.make_knots`` (open curves only);
@@ -15,11 +18,13 @@ fitted by
   Book's averaging, Eq. 9.68-9.69, so *not* uniform; open curves only);
 - ours, pure PSO (``refine=False``), ours (default refinement) and, once ``fit`` accepts it,
   ours with free knots (``free_knots=True``), all with seed 0;
-- paper: the SwarmCurves paper's Table 1 value where one exists (SPEC §4).
+- paper: the SwarmCurves paper's Table 1 value where one exists.
 
 The peers are fitted to the normalised points (``swarmcurves_jax.fit.normalise``) and their
-errors computed by the same projection as ours (``swarmcurves_jax.projection.project_points``
-on the peer's own knots and control points).  Cases (SPEC §4, N = 200): the analytic curves
+measures computed by the same code as ours (``project_points`` and the sampled curve of
+``swarmcurves_jax.measures`` on the peer's own knots and control points).  Targets, printed:
+on every row ours is no worse than the best peer in ``mean_deviation`` and in
+``max_deviation``.  Cases (N = 200): the analytic curves
 f1-f5 at n = 8, 11, 15, 19, 25; random cubics (open 6 cp fitted at n = 6, 8; closed 8 cp at
 n = 8, 10; seeds 0-2); the benchmark outlines of the data folder at n = 10, 15, 20.
 ``--cases`` keeps the cases whose name starts with one of the given prefixes (``f1``,
@@ -47,6 +52,7 @@ from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points, random_bspline_points
 from swarmcurves_jax.fit import normalise
 from swarmcurves_jax.knots import make_knots
+from swarmcurves_jax.measures import curve_polyline, data_polyline, median_spacing, sample_excursions
 from swarmcurves_jax.projection import project_points
 
 REPO = Path(__file__).resolve().parents[1]
@@ -63,8 +69,10 @@ OURS = {
 }
 REFERENCE = "ours"  # the column compared with the peers
 TIE = 1e-6  # relative slack of "no worse": projection round-off must not decide a tie
+MEASURES = ("error", "mean_deviation", "max_deviation")
+NAN_MEASURES = dict.fromkeys(MEASURES, math.nan)
 
-#: Paper Table 1 (SPEC §4): case -> (value, counts it is shown at, legible count?)
+#: Paper Table 1: case -> (value, counts it is shown at, legible count?)
 PAPER = {
     "f1": (5.2e-3, (11,), True),
     "f2": (4.5e-4, (19,), True),
@@ -111,21 +119,16 @@ def random_cases(seeds):
 
 
 def outline_cases(data_dir: Path):
-    """The benchmark outlines, read with the command line's loader (``outline:NAME``)."""
-    from swarmcurves_jax.run import load_input
+    """The benchmark outlines of the data folder, named ``outline:NAME``."""
+    from swarmcurves_jax.datasets import outlines_path, read_outlines
 
-    path = data_dir / "outlines" / "outlines.npz"
-    if not path.is_file():
-        print(f"note: no {path}; outline cases skipped", file=sys.stderr)
+    if not outlines_path(data_dir).is_file():
+        print(f"note: no {outlines_path(data_dir)}; outline cases skipped", file=sys.stderr)
         return []
-    with np.load(path) as npz:
-        names = sorted(k[: -len("_closed")] for k in npz.files if k.endswith("_closed"))
-    cases = []
-    for name in names:
-        cfg = {"input": f"outline:{name}", "data_dir": str(data_dir)}
-        pts, closed, label = load_input(cfg)
-        cases.append(Case(label, np.asarray(pts, float), closed, OUTLINE_CPS))
-    return cases
+    return [
+        Case(f"outline:{name}", np.asarray(o["points"], float), bool(o["closed"]), OUTLINE_CPS)
+        for name, o in sorted(read_outlines(data_dir).items())
+    ]
 
 
 def build_cases(args):
@@ -184,30 +187,40 @@ PEER_FITS = {
 }
 
 
-def curve_error(pts, ctrl, t):
-    """SPEC §1 ``error`` of a non-rational spline given by its full knot vector.
+def curve_measures(pts, ctrl, t, closed):
+    """``error``, ``mean_deviation`` and ``max_deviation`` of a non-rational spline given
+    by its full knot vector, measured as ``fit`` measures its own curves.
 
     Every peer's curve is a plain (clamped or periodic-unrolled) spline on ``t`` with
-    ``len(t) - k - 1`` coefficients, over the domain ``[0, 1]``.
+    ``len(t) - k - 1`` coefficients, over the domain ``[0, 1]``; a closed one is measured
+    against the closed data polygon.
     """
-    dist, _ = project_points(pts, ctrl, np.ones(len(ctrl)), t, DEGREE, False)
-    return float(np.mean(dist))
+    ones = np.ones(len(ctrl))
+    dist, _ = project_points(pts, ctrl, ones, t, DEGREE, False)
+    samples = curve_polyline(ctrl, ones, t, DEGREE, False, median_spacing(pts, closed))
+    far, mean, _ = sample_excursions(samples, data_polyline(pts, closed))
+    return {
+        "error": float(np.mean(dist)),
+        "mean_deviation": 0.5 * (float(np.mean(dist)) + mean),
+        "max_deviation": max(float(np.max(dist)), far),
+    }
 
 
 def run_peer(method, pts, n, closed):
-    """``(error, seconds, note)``: error None when not applicable, nan when the peer failed."""
+    """``(measures, seconds, note)``: measures None when not applicable, nan when the peer
+    failed."""
     start = time.perf_counter()
     try:
         ctrl, t = PEER_FITS[method](pts, n, closed)
     except NotApplicable as exc:
         return None, None, f"n/a: {exc}"
     except Exception as exc:  # noqa: BLE001 - a failing peer is reported, never fatal
-        return math.nan, None, f"{type(exc).__name__}: {exc}"
+        return NAN_MEASURES, None, f"{type(exc).__name__}: {exc}"
     seconds = time.perf_counter() - start
     try:
-        return curve_error(pts, ctrl, t), seconds, None
+        return curve_measures(pts, ctrl, t, closed), seconds, None
     except Exception as exc:  # noqa: BLE001
-        return math.nan, seconds, f"{type(exc).__name__} in the error: {exc}"
+        return NAN_MEASURES, seconds, f"{type(exc).__name__} in the measures: {exc}"
 
 
 # ----------------------------------------------------------------------------- ours
@@ -220,7 +233,7 @@ def available_ours():
 
 
 def run_ours(method, case, iterations):
-    """``{n: (error, swarm seconds per fit, refine seconds per fit)}`` from one fit call."""
+    """``{n: (measures, swarm seconds per fit, refine seconds per fit)}`` from one fit call."""
     result = fit(
         case.points,
         cps=list(case.cps),
@@ -233,7 +246,10 @@ def run_ours(method, case, iterations):
     timings = getattr(result, "timings", None) or {"swarm": result.wall_time}
     per_fit = len(case.cps)
     swarm, refine = timings.get("swarm", 0.0) / per_fit, timings.get("refine", 0.0) / per_fit
-    return {n: (float(result[DEGREE, n].error), swarm, refine) for n in case.cps}
+    return {
+        n: ({m: float(getattr(result[DEGREE, n], m)) for m in MEASURES}, swarm, refine)
+        for n in case.cps
+    }
 
 
 # ----------------------------------------------------------------------------- rows
@@ -249,10 +265,12 @@ def run_case(case, ours_methods, iterations, notes):
     pts = normalise(case.points)[0]
     rows = []
     for n in case.cps:
-        row = {"case": case.name, "n": n, "closed": case.closed, "error": {}, "time": {}}
+        row = {"case": case.name, "n": n, "closed": case.closed, "time": {}}
+        row.update({m: {} for m in MEASURES})
         for method in PEERS:
-            err, seconds, note = run_peer(method, pts, n, case.closed)
-            row["error"][method], row["time"][method] = err, seconds
+            measures, seconds, note = run_peer(method, pts, n, case.closed)
+            record(row, method, measures)
+            row["time"][method] = seconds
             if note:
                 notes.setdefault((method, note), []).append(f"{case.name} n={n}")
         rows.append(row)
@@ -262,10 +280,10 @@ def run_case(case, ours_methods, iterations, notes):
         except Exception as exc:  # noqa: BLE001 - reported as nan with a footnote
             note = f"{type(exc).__name__}: {exc}"
             notes.setdefault((method, note), []).append(case.name)
-            per_n = {n: (math.nan, None, None) for n in case.cps}
+            per_n = {n: (NAN_MEASURES, None, None) for n in case.cps}
         for row in rows:
-            err, swarm, refine = per_n[row["n"]]
-            row["error"][method] = err
+            measures, swarm, refine = per_n[row["n"]]
+            record(row, method, measures)
             row["time"][method] = None if swarm is None else swarm + refine
             row["time"][method + " (refine)"] = refine
     for row in rows:
@@ -273,14 +291,23 @@ def run_case(case, ours_methods, iterations, notes):
     return rows
 
 
+def record(row, method, measures):
+    """One method's measures into the row (None: the method has no variant for the case)."""
+    for m in MEASURES:
+        row[m][method] = None if measures is None else measures[m]
+
+
 def finish_row(row):
-    errors = row["error"]
-    peers = [errors[m] for m in PEERS if valid(errors.get(m))]
-    ours, lsq = errors.get(REFERENCE), errors.get(PEERS[0])
+    """The row's comparisons: ours against the best peer in every measure."""
     row["paper"] = paper_value(row["case"], row["n"])
-    row["best_peer"] = min(peers) if peers else None
+    ours, lsq = row["error"].get(REFERENCE), row["error"].get(PEERS[0])
     row["ratio"] = ours / lsq if valid(ours) and valid(lsq) and lsq > 0 else None
-    row["ours_le_best"] = no_worse(ours, min(peers)) if peers and valid(ours) else None
+    row["best_peer"], row["ours_le_best"] = {}, {}
+    for m in MEASURES:
+        peers = [row[m][p] for p in PEERS if valid(row[m].get(p))]
+        best, mine = (min(peers) if peers else None), row[m].get(REFERENCE)
+        row["best_peer"][m] = best
+        row["ours_le_best"][m] = no_worse(mine, best) if best is not None and valid(mine) else None
 
 
 def valid(x):
@@ -302,15 +329,20 @@ def fmt(x, spec=".2e"):
     return "nan" if math.isnan(x) else format(x, spec)
 
 
-def error_table(rows, methods):
-    head = ["case", "n", *methods, "paper", f"{REFERENCE} / scipy LSQ", f"{REFERENCE} <= best peer"]
+def measure_table(rows, methods, measure):
+    """One measure of every method per row, the paper's value and ours against the peers."""
+    head = ["case", "n", *methods]
+    head += ["paper", f"{REFERENCE} / scipy LSQ"] if measure == "error" else []
+    head.append(f"{REFERENCE} <= best peer")
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        paper = fmt(r["paper"])
-        if r["paper"] is not None and not PAPER[r["case"]][2]:
-            paper += " †"
-        cells = [r["case"], str(r["n"]), *(fmt(r["error"].get(m)) for m in methods), paper]
-        cells += [fmt(r["ratio"], ".3g"), fmt(r["ours_le_best"])]
+        cells = [r["case"], str(r["n"]), *(fmt(r[measure].get(m)) for m in methods)]
+        if measure == "error":
+            paper = fmt(r["paper"])
+            if r["paper"] is not None and not PAPER[r["case"]][2]:
+                paper += " †"
+            cells += [paper, fmt(r["ratio"], ".3g")]
+        cells.append(fmt(r["ours_le_best"][measure]))
         lines.append("| " + " | ".join(cells) + " |")
     return lines
 
@@ -336,15 +368,27 @@ def summary_lines(rows, ours_methods):
     for m in ours_methods:
         pairs = [(r["error"].get(PEERS[0]), r["error"][m]) for r in rows]
         ratios = [lsq / ours for lsq, ours in pairs if valid(lsq) and valid(ours) and ours > 0]
-        compared = [r for r in rows if r["best_peer"] is not None]
-        wins = sum(no_worse(r["error"][m], r["best_peer"]) for r in compared)
         med = f"{np.median(ratios):.3g}" if ratios else "n/a"
+        wins = []
+        for measure in MEASURES:
+            compared = [r for r in rows if r["best_peer"][measure] is not None]
+            won = sum(no_worse(r[measure][m], r["best_peer"][measure]) for r in compared)
+            wins.append(f"{measure} {won}/{len(compared)}")
         lines.append(
-            f"- {m}: median scipy LSQ / {m} = {med} over {len(ratios)} rows; "
-            f"no worse than the best peer in {wins}/{len(compared)} rows"
+            f"- {m}: median scipy LSQ / {m} error = {med} over {len(ratios)} rows; "
+            f"rows no worse than the best peer: {', '.join(wins)}"
         )
+    lines += ["", "Targets (every row, ours no worse than the best peer):"]
+    for measure in ("mean_deviation", "max_deviation"):
+        compared = [r for r in rows if r["ours_le_best"][measure] is not None]
+        lost = [r for r in compared if not r["ours_le_best"][measure]]
+        verdict = "met" if not lost else "NOT met"
+        lines.append(f"- {measure}: {verdict} ({len(compared) - len(lost)} of {len(compared)} rows)")
+        for r in lost:
+            ratio = r[measure][REFERENCE] / r["best_peer"][measure]
+            lines.append(f"  - worse: {r['case']} at n = {r['n']}, {ratio:.2f}x the best peer")
     lines.append("")
-    lines.append("Targets of the issue (f1-f5):")
+    lines.append("One-sided error targets (f1-f5; f1 and f3 at a tenth of the paper's value):")
     for case, op, value, counts in TARGETS:
         case_rows = [r for r in rows if r["case"] == case and r["n"] in counts]
         if not case_rows:
@@ -382,11 +426,23 @@ def markdown(rows, ours_methods, notes, iterations):
         "# Accuracy against least-squares peers (degree 3, equal control-point count)",
         "",
         (
-            "Mean point-to-curve distance (SPEC §1 `error`, normalised frame); ours: seed 0, "
-            f"{iterations} iterations, 64 particles."
+            "Normalised frame; ours: seed 0, "
+            f"{iterations} iterations, 64 particles.  `mean_deviation` and `max_deviation` "
+            "(both ways between the curve and the data polyline) judge a fit; `error` "
+            "(data to curve only) cannot see a loop or spike between the points."
         ),
         "",
-        *error_table(rows, methods),
+        "## mean_deviation",
+        "",
+        *measure_table(rows, methods, "mean_deviation"),
+        "",
+        "## max_deviation (Hausdorff distance to the data polyline)",
+        "",
+        *measure_table(rows, methods, "max_deviation"),
+        "",
+        "## error (one-sided)",
+        "",
+        *measure_table(rows, methods, "error"),
         "",
         (
             "- † the paper's count for f4 and f5 is not legible in the source: its value is "
@@ -418,11 +474,13 @@ def markdown(rows, ours_methods, notes, iterations):
 
 def flat_row(row, methods):
     out = {"case": row["case"], "n": row["n"], "closed": row["closed"]}
-    for m in methods:
-        out[f"error {m}"] = row["error"].get(m)
+    for measure in MEASURES:
+        for m in methods:
+            out[f"{measure} {m}"] = row[measure].get(m)
     out["paper"] = row["paper"]
     out[f"{REFERENCE} / scipy LSQ"] = row["ratio"]
-    out[f"{REFERENCE} <= best peer"] = row["ours_le_best"]
+    for measure in MEASURES:
+        out[f"{REFERENCE} <= best peer ({measure})"] = row["ours_le_best"][measure]
     for m in methods:
         out[f"time {m}"] = row["time"].get(m)
     return out

@@ -1,4 +1,4 @@
-"""Speed of the swarm (SPEC §5): W1 against peers in the same run, scaling curves, roofline.
+"""Speed of the swarm: W1 against peers in the same run, scaling curves, roofline.
 
     python benchmarks/speed.py [--quick] [--out DIR] [--skip peers,scaling,compile,memory,roofline]
                                [--only memory,...]   # rerun sections into the last report
@@ -171,7 +171,7 @@ def numpy_fitness(positions, basis, points, k, feet=None, every=1, xp=np):
 
 
 def numpy_pso(basis, points, dim, k, iterations, every=1, particles=64, seed=0):
-    """The paper's PSO update (SPEC §1) with our defaults, in plain NumPy."""
+    """The paper's PSO update with our defaults, in plain NumPy."""
     p = default_params()
     rng = np.random.default_rng(seed)
     q = rng.uniform(-1, 1, (particles, dim)).astype(np.float32)

@@ -48,7 +48,7 @@ class Curve:
     closed, rational : bool
     error, max_error, rms_error : float
         Mean, largest and RMS distance from the data points to the curve, by true
-        projection, in the normalised frame of SPEC §1 (``nan`` if never measured).
+        projection, in the normalised frame (``nan`` if never measured).
     error_pct_diag : float
         ``error`` as a percentage of the data's bounding-box diagonal.
     mean_deviation, max_deviation : float

@@ -1,4 +1,4 @@
-"""Built-in point sets: the paper's analytic curves (SPEC §4) and random B-splines."""
+"""Built-in point sets: the paper's analytic curves f1-f5 and random B-splines."""
 
 from __future__ import annotations
 
@@ -167,7 +167,7 @@ def butterfly_nurbs():
 def outlines_path(data_dir=None) -> Path:
     """Where the benchmark outlines are: ``data_dir/outlines/outlines.npz``, with
     ``data_dir`` defaulting to ``$SWARMCURVES_DATA``, else the first ``shared/data`` found
-    beside the working folder or beside this repository (SPEC §4; the data are read at run
+    beside the working folder or beside this repository (the data are read at run
     time, never copied).  Raises ``FileNotFoundError`` naming the folders tried."""
     if data_dir is not None or os.environ.get("SWARMCURVES_DATA"):
         roots = [Path(data_dir if data_dir is not None else os.environ["SWARMCURVES_DATA"])]

@@ -62,7 +62,7 @@ __all__ = ["fit", "normalise", "default_num_samples", "bucket_length"]
 
 
 def normalise(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """SPEC §1 normalisation: ``(points - c) / s`` inside ``[-1, 1]^D``, aspect kept.
+    """The normalisation: ``(points - c) / s`` inside ``[-1, 1]^D``, aspect kept.
 
     Points that all coincide have no extent; their scale is taken as 1.
     """
@@ -713,7 +713,7 @@ def fit(
 ) -> FitResult:
     """Fit B-spline (or NURBS) curves with every requested degree and control-point count.
 
-    Each (degree, n) pair is an independent particle swarm (SPEC §1); all swarms of the
+    Each (degree, n) pair is an independent particle swarm; all swarms of the
     call run in one jit-compiled program, on the default JAX device (a GPU if JAX sees
     one); when JAX has several CPU devices (``jax_num_cpu_devices``), the swarms are
     dealt over them, one program each, with the same results
@@ -745,8 +745,8 @@ def fit(
         Polish every swarm's solution locally after the swarm (see
         :mod:`swarmcurves_jax.refine`): ``True`` or ``"lm"`` is Levenberg–Marquardt on
         the orthogonal distances, ``"lbfgs"`` optax's L-BFGS, ``False`` the paper's pure
-        PSO.  A polished solution replaces the swarm's only if its measured error is
-        lower.
+        PSO.  A polished solution replaces the swarm's only if its two-sided
+        ``mean_deviation`` is lower.
     particles : int
         Particles per swarm.
     iterations : int
@@ -768,7 +768,7 @@ def fit(
         every ``search_every`` iterations (polygons: every iteration); in between, a
         particle's Newton steps start from its last search's samples.  8 runs W1 1.5x
         faster with the same mean errors, but the swarm finds exact curves less often
-        (README, "Reusing the search"); the default 1 searches every iteration.
+        (docs/method.md, "Reusing the search"); the default 1 searches every iteration.
     chunk_size : int
         Iterations per compiled chunk; between chunks the host checks ``tol`` and calls
         ``callback``.  Results do not depend on it.
@@ -920,7 +920,7 @@ def bucket_length(n: int) -> int:
 
 
 class _Prepared(NamedTuple):
-    """One curve, ready for the device: host-side setup of SPEC §1, all in NumPy."""
+    """One curve, ready for the device: normalisation, knots and seeds, all in NumPy."""
 
     points: np.ndarray  # the caller's points (float64; a closed input's repeat dropped)
     norm_pts: np.ndarray  # normalised: what the errors are measured on
@@ -1024,7 +1024,7 @@ def _swarm_costs(pairs, groups, closed: bool, columns: int) -> np.ndarray:
     ``5 + spans (k + 3) columns / 5`` for its span selects and Newton steps (``spans``: its
     group's, ``columns``: D, + 1 if rational); a polygon's 1.25 a segment (its search is
     its distance, :func:`~swarmcurves_jax.fitness.polyline_distances`).  Fitted to the
-    CPU time of W1's groups (stop 27): a sample 3.4 us a swarm and iteration, the rest
+    CPU time of W1's groups: a sample 3.4 us a swarm and iteration, the rest
     20 samples' worth for the quadratics (8 spans), 22 for the cubics (7), a polygon 11.5
     for 9 segments.  ``benchmarks/bench_w1.py`` times the split it gives."""
     cost = np.zeros(len(pairs))
@@ -1449,7 +1449,7 @@ def _degree_groups(pairs, closed, num_samples=None) -> tuple[tuple[int, int, int
     Splitting a run so that its smaller counts search fewer samples was measured on W1
     (two groups each for degrees 2 and 3, 24 % less search work on paper): no gain in
     time within the noise, and a longer compile, so a degree is one group.  Measured
-    again at stop 27, with the search stored apart: W1 2.68 s warm with both degrees cut
+    again with the search stored apart: W1 2.68 s warm with both degrees cut
     (2.86 s with one), against 3.03 s, but cold 9.8-10.1 s (8.6 s with one) against 7.6 s,
     and the smaller counts, searching 4 samples a span where they had searched up to 16,
     found exact curves less often (two paper cases over seeds 0-5: 5 of 12 against 7 of

@@ -1,4 +1,4 @@
-"""Knot vectors of SPEC §1: clamped uniform (open) and uniform periodic (closed), and the
+"""Knot vectors: clamped uniform (open) and uniform periodic (closed), and the
 free (non-uniform) knots of ``fit(free_knots=True)``: the same two structures with
 interior knots placed by span widths.
 
@@ -67,7 +67,7 @@ def periodic_uniform_knots(n: int, k: int) -> np.ndarray:
 
 
 def make_knots(n: int, k: int, closed: bool) -> np.ndarray:
-    """The knot vector SPEC §1 fixes for an open (clamped) or closed (periodic) curve."""
+    """The uniform knot vector of an open (clamped) or closed (periodic) curve."""
     return periodic_uniform_knots(n, k) if closed else clamped_uniform_knots(n, k)
 
 
@@ -106,7 +106,7 @@ def knots_from_widths(widths, num_spans, k: int, closed: bool, xp=np):
 
 
 def check_knots(t, n: int, k: int, closed: bool) -> np.ndarray:
-    """``t`` as float64 if it is a knot vector of SPEC's structure for ``n`` control points
+    """``t`` as float64 if it is a clamped (open) or periodic (closed) knot vector for ``n`` control points
     of degree ``k`` (uniform or not), else ``ValueError`` saying what is wrong.
 
     Open: length ``n+k+1``, ``k+1`` zeros, ``k+1`` ones, non-decreasing interior knots of

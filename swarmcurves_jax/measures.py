@@ -22,7 +22,15 @@ import numpy as np
 
 from .projection import curve_derivatives, dense_parameters, distance_to_polyline
 
-__all__ = ["Deviations", "curve_polyline", "data_polyline", "deviations", "excursions"]
+__all__ = [
+    "Deviations",
+    "curve_polyline",
+    "data_polyline",
+    "deviations",
+    "excursions",
+    "median_spacing",
+    "sample_excursions",
+]
 
 #: Initial samples per knot span of the curve; then refined where the curve bends or
 #: runs fast (:func:`curve_polyline`).
@@ -51,7 +59,8 @@ def data_polyline(points: np.ndarray, closed: bool) -> np.ndarray:
     return np.vstack([points, points[:1]]) if closed else points
 
 
-def _median_spacing(points: np.ndarray, closed: bool) -> float:
+def median_spacing(points: np.ndarray, closed: bool) -> float:
+    """The median length of the data polyline's segments (the unit of its sampling)."""
     seg = np.linalg.norm(np.diff(data_polyline(points, closed), axis=0), axis=1)
     seg = seg[seg > 0]
     return float(np.median(seg)) if len(seg) else 1.0
@@ -87,11 +96,21 @@ def excursions(points, ctrl, weights, t, k, closed) -> tuple[float, float, float
     """``(max, arc-length mean, arc-length RMS)`` over the curve of its distance to the
     data polyline."""
     points = np.asarray(points, dtype=np.float64)
-    samples = curve_polyline(ctrl, weights, t, k, closed, _median_spacing(points, closed))
+    samples = curve_polyline(ctrl, weights, t, k, closed, median_spacing(points, closed))
     if len(points) < 2:
         d = np.linalg.norm(samples - points[:1], axis=1)
-    else:
-        d = distance_to_polyline(samples, data_polyline(points, closed))
+        return float(np.max(d)), float(np.mean(d)), float(np.sqrt(np.mean(d**2)))
+    return sample_excursions(samples, data_polyline(points, closed))
+
+
+def sample_excursions(samples, polyline) -> tuple[float, float, float]:
+    """``(max, arc-length mean, arc-length RMS)`` of the distances from a densely sampled
+    curve ``samples`` (M, D), in order, to the polyline with vertices ``polyline``.
+
+    For curves that are not a :class:`~.curves.Curve`, such as a peer's spline on its own
+    knots: sample it with :func:`curve_polyline`, then measure here."""
+    samples = np.asarray(samples, dtype=np.float64)
+    d = distance_to_polyline(samples, np.asarray(polyline, dtype=np.float64))
     arc = np.linalg.norm(np.diff(samples, axis=0), axis=1)
     total = float(np.sum(arc))
     if total > 0:

@@ -1,4 +1,4 @@
-"""The SwarmCurves paper's experiments (SPEC §4) as cases a script or a notebook can run.
+"""The SwarmCurves paper's experiments as cases a script or a notebook can run.
 
 A :class:`Case` holds the data, what to fit, the truth where one is known and the paper's
 figure where it gives one; :func:`run_case` fits it and measures every solution against the
@@ -51,7 +51,7 @@ TABLE1 = {
 }
 #: The paper's claim for clean data: mean error below this % of the bounding-box diagonal.
 PAPER_PCT_DIAG = 0.35
-TRUTH_SAMPLES = 10_000  # SPEC §1: the symmetric distance samples each curve this densely
+TRUTH_SAMPLES = 10_000  # the symmetric distance samples each curve this densely
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -119,7 +119,7 @@ def _to_polyline(points: np.ndarray, polyline: np.ndarray, closed: bool) -> np.n
 
 
 def symmetric_distance(a: np.ndarray, b: np.ndarray, closed: bool = False) -> float:
-    """SPEC §1's symmetric mean distance between two curves given as dense ordered samples:
+    """The symmetric mean distance between two curves given as dense ordered samples:
     the mean of (mean distance from ``a`` to ``b``) and (from ``b`` to ``a``), each curve
     resampled at 10,000 points evenly spaced by arc length and measured against the other
     as a polyline."""
@@ -335,7 +335,7 @@ FIGURES = ("Fig. 2", "Fig. 3", "Fig. 4", "Fig. 5", "Fig. 6", "Fig. 7", "Fig. 8 /
 
 
 def paper_cases(data_dir=None) -> tuple[list[Case], list[str]]:
-    """Every case of SPEC §4, in the paper's figure order, and notes on what was skipped
+    """Every experiment of the paper, in its figure order, and notes on what was skipped
     (the benchmark outlines when their folder is not found; see
     :func:`swarmcurves_jax.datasets.outlines_path`)."""
     fig4, skipped = _fig4(data_dir)
@@ -394,7 +394,7 @@ def _measure(case: Case, result: FitResult, curve: Curve) -> dict[str, Any]:
 
 def run_case(case: Case, *, iterations: int = 2000, seed: int = 0, **overrides) -> CaseRun:
     """Fit ``case`` (``overrides`` go to :func:`swarmcurves_jax.fit`) and measure every
-    solution: the data errors of SPEC §1, the error against the clean data and the
+    solution: the data errors, the error against the clean data and the
     symmetric distance to the truth where the case has them."""
     kwargs = {**case.fit_kwargs, **overrides}
     result = fit(case.points, closed=case.closed, iterations=iterations, seed=seed, **kwargs)

@@ -1,4 +1,4 @@
-"""True point-to-curve distances (SPEC §1 error metrics), in float64 NumPy.
+"""True point-to-curve distances (the reported errors), in float64 NumPy.
 
 Each point is projected on the curve: a dense sampling that contains every knot gives a
 polyline; the three chords nearest to the point (the true foot lies on an arc whose chord is

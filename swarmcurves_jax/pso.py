@@ -1,4 +1,4 @@
-"""Particle swarm optimisation as pure functions over a state pytree (SPEC §1).
+"""Particle swarm optimisation as pure functions over a state pytree (the paper's update).
 
 One swarm minimises ``fitness_fn(positions) -> (P,)`` over flat positions of shape
 ``(P, dim)``.  Everything here is traceable: ``run`` is a ``lax.scan`` over ``step``, and a

@@ -61,7 +61,7 @@ class FitResult:
         last point removed).
     center : ndarray, shape (D,)
     scale : float
-        The normalisation of SPEC §1: ``normalised = (points - center) / scale``.
+        The normalisation: ``normalised = (points - center) / scale``.
     history : ndarray, shape (num_solutions, iterations_run)
         Best swarm fitness (normalised frame) after every iteration, per solution.
     stop_reason : str

@@ -9,7 +9,13 @@ from swarmcurves_jax import Curve
 from swarmcurves_jax.fitness import data_segments
 from swarmcurves_jax.fitness import excursion, make_span_basis, curve_samples
 from swarmcurves_jax.knots import make_knots
-from swarmcurves_jax.measures import curve_polyline, deviations, excursions
+from swarmcurves_jax.measures import (
+    curve_polyline,
+    deviations,
+    excursions,
+    median_spacing,
+    sample_excursions,
+)
 from swarmcurves_jax.projection import distance_to_polyline, project_points
 
 
@@ -106,3 +112,16 @@ def test_the_penalty_is_zero_on_the_curve_the_data_sample_and_sees_a_spike():
         bent[3] += [3.0, 3.0]
         spiked = Curve(3, bent, np.ones(n), truth.knots, closed=closed)
         assert _penalty(spiked, points, closed) > 0.1
+
+
+def test_sample_excursions_of_a_peer_curve_are_arc_length_weighted():
+    """Samples of any curve against any polyline: a path along y = 1 for 3 units, then
+    along y = 0 for 1 unit, over the x axis: max 1, arc mean (3 * 1 + 1 * 0) / 4 (plus the
+    unit drop, whose mean distance is 1/2) and RMS by the same weights."""
+    samples = np.array([[0.0, 1.0], [3.0, 1.0], [3.0, 0.0], [4.0, 0.0]])
+    polyline = np.array([[-1.0, 0.0], [5.0, 0.0]])
+    far, mean, rms = sample_excursions(samples, polyline)
+    assert far == 1.0
+    assert mean == pytest.approx((3 * 1 + 1 * 0.5 + 1 * 0) / 5)
+    assert rms == pytest.approx(np.sqrt((3 * 1 + 1 * 0.5 + 0) / 5))
+    assert median_spacing(np.array([[0, 0], [1, 0], [3, 0], [6, 0]]), closed=False) == 2.0

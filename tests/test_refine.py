@@ -59,7 +59,7 @@ def test_refinement_beats_the_pure_swarm_on_f1_at_11_control_points():
     pts = analytic_points("f1")
     pure = fit(pts, cps=[8, 11], iterations=400, refine=False)
     refined = fit(pts, cps=[8, 11], iterations=400)
-    assert refined[3, 11].error <= 5.2e-4  # issue 5's target (the paper: 5.2e-3)
+    assert refined[3, 11].error <= 5.2e-4  # a tenth of the paper's 5.2e-3
     assert refined[3, 11].error < 0.8 * pure[3, 11].error
     for a, b in zip(pure.solutions, refined.solutions):
         assert b.error <= a.error  # never worse: the lower true error is kept
