@@ -1499,6 +1499,19 @@ def _runs_backwards(foot: np.ndarray, closed: bool) -> bool:
     return int(np.sum(np.sign(steps))) < 0
 
 
+def _reversed(ctrl, weights, t, k: int, closed: bool, free_knots: bool):
+    """The same curve traversed the other way: control points and weights reversed and,
+    on free (non-uniform) knots, the knot vector mirrored, ``1 - t[::-1]``, with a closed
+    curve's control points rolled by ``k`` to line up with the mirrored periodic knots.
+    Uniform knots are their own mirror, and a uniform closed curve needs no roll."""
+    ctrl, weights = ctrl[::-1], weights[::-1]
+    if not free_knots:
+        return ctrl, weights, t
+    if closed:
+        ctrl, weights = np.roll(ctrl, k, axis=0), np.roll(weights, k)
+    return ctrl, weights, 1.0 - t[::-1]
+
+
 def _available_memory() -> int | None:
     try:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
@@ -1569,7 +1582,7 @@ def _make_curve(k, n, candidates, steps, space, closed, norm_pts, center, scale,
         measured, key=lambda m: math.inf if math.isnan(m[0].mean_deviation) else m[0].mean_deviation
     )
     if _runs_backwards(foot, closed):  # same geometry, traversed like the input
-        ctrl, weights = ctrl[::-1], weights[::-1]
+        ctrl, weights, t = _reversed(ctrl, weights, t, k, closed, bool(space.num_knots))
     diag = float(np.linalg.norm(np.ptp(norm_pts, axis=0)))
     error = float(np.mean(dist))
     pct = lambda x: 100.0 * x / diag if diag > 0 else (0.0 if x == 0 else math.inf)  # noqa: E731

@@ -10,6 +10,8 @@ from hypothesis import strategies as st
 from swarmcurves_jax import Curve, design_matrix, fit
 from swarmcurves_jax.datasets import analytic_points
 from swarmcurves_jax.fitness import foot_samples, free_knot_basis, point_distances
+from swarmcurves_jax.fit import normalise
+from swarmcurves_jax.projection import project_points
 from swarmcurves_jax.knots import (
     MIN_SPAN_FRACTION,
     check_knots,
@@ -127,6 +129,28 @@ def test_closed_free_knots_stay_periodic():
     u = np.linspace(0, 1, 40)
     np.testing.assert_allclose(clamped.evaluate(u), curve.evaluate(u), atol=1e-9)
     assert curve.error < 2e-2
+
+
+@pytest.mark.parametrize("closed", [False, True])
+def test_a_reversed_input_returns_the_curve_that_was_measured(closed):
+    """Input whose reverse the swarm fits (it sees the lexicographically first order): the
+    curve comes back traversed like the input, so on free knots the knot vector is
+    mirrored with the control points.  The returned curve's own distances to the data
+    must be the ones it reports, and it must run from the input's first point."""
+    if closed:
+        theta = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+        pts = np.c_[np.cos(theta) * (1 + 0.3 * np.cos(3 * theta)), np.sin(theta)]
+    else:
+        pts = _non_uniform_cubic()
+    pts = pts[::-1] if tuple(pts[0]) < tuple(pts[-1]) else pts  # the swarm fits the reverse
+    curve = fit(pts, cps=[9], closed=closed, iterations=200, free_knots=True)[3, 9]
+    check_knots(curve.knots, 9, 3, closed)
+    dist, foot = project_points(
+        pts, curve.control_points, curve.weights, curve.knots, 3, closed
+    )
+    scale = normalise(pts)[2]  # curve.error is in the normalised frame
+    np.testing.assert_allclose(dist.mean() / scale, curve.error, rtol=1e-6)
+    assert np.sum(np.sign((np.diff(foot) + 0.5) % 1.0 - 0.5 if closed else np.diff(foot))) > 0
 
 
 def test_curve_rejects_knots_of_the_wrong_structure():
