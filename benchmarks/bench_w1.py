@@ -166,7 +166,7 @@ def main(argv=None):
     )
     print(
         f"machine now   : a 4096² float32 matmul at {machine[0] / 1e9:.1f} GFLOP/s before the "
-        f"warm runs, {machine[1] / 1e9:.1f} after (a gauge of the window: README, The machine)"
+        f"warm runs, {machine[1] / 1e9:.1f} after (a gauge of the window: docs/performance.md, The machine)"
     )
     if with_bar:
         print(

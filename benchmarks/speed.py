@@ -6,7 +6,7 @@
                                [--search-every N]    # fit's search_every, peers too
 
 Ours runs with one JAX CPU device per core (``--cpu-devices``), so ``fit`` deals its swarms
-over them, one program each (README, "Several CPU devices"); the peers run as before.
+over them, one program each (docs/method.md, "Several CPU devices"); the peers run as before.
 
 What it measures, all with ``refine=False`` (the swarm alone, the workload peers share):
 
@@ -683,7 +683,7 @@ def main(argv=None):
         "--cpu-devices",
         type=int,
         default=os.cpu_count(),
-        help="CPU devices JAX makes: fit deals its swarms over them (README); default one "
+        help="CPU devices JAX makes: fit deals its swarms over them (docs/method.md); default one "
         "per core, 1 for one program",
     )
     ap.add_argument(

@@ -170,8 +170,9 @@ class Curve:
 
     @classmethod
     def from_scipy(cls, spline) -> "Curve":
-        """A curve from a ``BSpline`` on clamped uniform knots, or on uniform periodic knots
-        with the first ``k`` coefficients repeated at the end (what :meth:`to_scipy` makes)."""
+        """A curve from a ``BSpline`` on clamped knots, or on periodic knots with the first
+        ``k`` coefficients repeated at the end (what :meth:`to_scipy` makes); the knots may
+        be non-uniform."""
         from .interop import from_scipy
 
         return from_scipy(spline, cls)

@@ -752,7 +752,8 @@ def fit(
     iterations : int
         Iteration limit (the paper: 2000).  Each iteration evaluates every particle once.
     tol : float, optional
-        Stop a swarm once its best fitness (mean distance, normalised frame) is ``<= tol``;
+        Stop a swarm once its best fitness (mean distance plus the excursion term,
+        normalised frame) is ``<= tol``;
         the call returns as soon as every swarm has.
     seed : int or jax PRNG key
         Same inputs and seed give the same curves (on the same device).
@@ -766,8 +767,8 @@ def fit(
     search_every : int
         The swarm searches each point's nearest curve sample (most of the fitness's work)
         every ``search_every`` iterations (polygons: every iteration); in between, a
-        particle's Newton steps start from its last search's samples.  8 runs W1 1.5x
-        faster with the same mean errors, but the swarm finds exact curves less often
+        particle's Newton steps start from its last search's samples.  8 is faster, but
+        the swarm finds exact curves less often
         (docs/method.md, "Reusing the search"); the default 1 searches every iteration.
     chunk_size : int
         Iterations per compiled chunk; between chunks the host checks ``tol`` and calls

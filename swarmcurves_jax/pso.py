@@ -60,7 +60,7 @@ class PSOParams(NamedTuple):
 
 
 def default_params() -> PSOParams:
-    """Defaults chosen by measurement (``benchmarks/tune_pso.py``): see README."""
+    """Defaults chosen by measurement (``benchmarks/tune_pso.py``; docs/accuracy.md)."""
     return PSOParams(inertia=0.7298, cognitive=1.49618, social=1.49618, v_max=0.1, patience=100.0)
 
 

@@ -71,7 +71,7 @@ SCHEMA = {
     "free_knots": (False, "bool", "let the swarm and the polish move the interior knots"),
     "particles": (64, "int>=1", "particles per swarm"),
     "iterations": (2000, "int>=1", "iteration limit (the paper: 2000)"),
-    "tol": (None, "float>=0?", "stop once every swarm's mean distance (normalised frame) <= tol"),
+    "tol": (None, "float>=0?", "stop once every swarm's fitness (mean distance plus excursions, normalised frame) <= tol"),
     "inertia": (0.7298, "float", "PSO inertia (the paper's psi)"),
     "cognitive": (1.49618, "float", "PSO weight of the personal best (phi_l)"),
     "social": (1.49618, "float", "PSO weight of the swarm's best (phi_g)"),
@@ -84,8 +84,8 @@ SCHEMA = {
     "search_every": (
         1,
         "int>=1",
-        "search each point's nearest curve sample every this many iterations (8: about 1.5x "
-        "faster, the same mean errors, exact curves found less often; README)",
+        "search each point's nearest curve sample every this many iterations (8: faster, "
+        "finds exact curves less often; docs/method.md)",
     ),
     "seed": (0, "int>=0", "random seed"),
     "select_pct_diag": (

@@ -16,8 +16,8 @@ def spline_points(seed, n, closed, dim=2, num=200):
     return random_bspline_points(n, 3, closed, num_points=num, dim=dim, seed=seed)[0]
 
 
-# The swarm does not find the global basin on every random curve: the rates measured over 12
-# seeds are in README.md (benchmarks/recovery_rates.py).  These are fixed random cases.
+# The swarm does not find the global basin on every random curve: the rates measured over 20
+# seeds are in docs/accuracy.md (benchmarks/recovery_rates.py).  These are fixed random cases.
 @pytest.mark.parametrize(
     "seed,n,closed,dim,cps",
     [

@@ -334,7 +334,7 @@ def test_reused_search_never_undercuts_and_follows_small_moves(closed, n, k, rat
     the moved curve (never below the exact distance, whatever the samples), and after a
     small move they are as near exact as a fresh search.  (After larger moves they may
     overestimate, by up to 16 % of the mean at 1e-2 on these loopy curves; what that does
-    to the swarm is measured in README, "Reusing the search".)"""
+    to the swarm is described in docs/method.md, "Reusing the search".)"""
     xn, cn, w, t = _random_curve(n, k, closed, 7, rational)
     basis = as_jax(make_span_basis(n, k, closed, default_num_samples([(k, n)], closed)))
     pts = jnp.asarray(xn, jnp.float32)
