@@ -52,7 +52,12 @@ from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points, random_bspline_points
 from swarmcurves_jax.fit import normalise
 from swarmcurves_jax.knots import make_knots
-from swarmcurves_jax.measures import curve_polyline, data_polyline, median_spacing, sample_excursions
+from swarmcurves_jax.measures import (
+    curve_polyline,
+    data_polyline,
+    median_spacing,
+    sample_excursions,
+)
 from swarmcurves_jax.projection import project_points
 
 REPO = Path(__file__).resolve().parents[1]

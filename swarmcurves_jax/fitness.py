@@ -164,8 +164,9 @@ def make_span_basis(
     num_spans_pad: int | None = None,
     max_degree: int | None = None,
 ) -> SpanBasis:
-    """Host-side (NumPy float64) :class:`SpanBasis` on the uniform knots (:func:`~swarmcurves_jax.knots.make_knots`),
-    padded to ``n_pad`` control points, ``num_spans_pad`` spans and ``max_degree``."""
+    """Host-side (NumPy float64) :class:`SpanBasis` on the uniform knots
+    (:func:`~swarmcurves_jax.knots.make_knots`), padded to ``n_pad`` control points,
+    ``num_spans_pad`` spans and ``max_degree``."""
     n_pad = n if n_pad is None else n_pad
     t = make_knots(n, k, closed)
     breaks = breakpoints(t)

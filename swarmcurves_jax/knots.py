@@ -106,8 +106,9 @@ def knots_from_widths(widths, num_spans, k: int, closed: bool, xp=np):
 
 
 def check_knots(t, n: int, k: int, closed: bool) -> np.ndarray:
-    """``t`` as float64 if it is a clamped (open) or periodic (closed) knot vector for ``n`` control points
-    of degree ``k`` (uniform or not), else ``ValueError`` saying what is wrong.
+    """``t`` as float64 if it is a clamped (open) or periodic (closed) knot vector for
+    ``n`` control points of degree ``k`` (uniform or not), else ``ValueError`` saying what
+    is wrong.
 
     Open: length ``n+k+1``, ``k+1`` zeros, ``k+1`` ones, non-decreasing interior knots of
     multiplicity at most ``k`` in (0, 1).  Closed: length ``n+2k+1``, ``t[k] = 0``,

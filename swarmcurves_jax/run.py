@@ -71,7 +71,12 @@ SCHEMA = {
     "free_knots": (False, "bool", "let the swarm and the polish move the interior knots"),
     "particles": (64, "int>=1", "particles per swarm"),
     "iterations": (2000, "int>=1", "iteration limit (the paper: 2000)"),
-    "tol": (None, "float>=0?", "stop once every swarm's fitness (mean distance plus excursions, normalised frame) <= tol"),
+    "tol": (
+        None,
+        "float>=0?",
+        "stop once every swarm's fitness (mean distance plus excursions, normalised frame) "
+        "<= tol",
+    ),
     "inertia": (0.7298, "float", "PSO inertia (the paper's psi)"),
     "cognitive": (1.49618, "float", "PSO weight of the personal best (phi_l)"),
     "social": (1.49618, "float", "PSO weight of the swarm's best (phi_g)"),
