@@ -21,10 +21,10 @@ curves are fitted by
 - paper: the SwarmCurves paper's Table 1 value where one exists.
 
 The peers are fitted to the normalised points (``swarmcurves_jax.fit.normalise``) and their
-measures computed by the same code as ours (``project_points`` and the sampled curve of
-``swarmcurves_jax.measures`` on the peer's own knots and control points).  Targets, printed:
-on every row ours is no worse than the best peer in ``mean_deviation`` and in
-``max_deviation``.  Cases (N = 200): the analytic curves
+measures computed by the same code as ours (``project_points`` and
+``swarmcurves_jax.measures.deviations`` on the peer's own knots and control points).
+Targets, printed: on every row ours is no worse than the best peer in ``mean_deviation``
+and in ``max_deviation``.  Cases (N = 200): the analytic curves
 f1-f5 at n = 8, 11, 15, 19, 25; random cubics (open 6 cp fitted at n = 6, 8; closed 8 cp at
 n = 8, 10; seeds 0-2); the benchmark outlines of the data folder at n = 10, 15, 20.
 ``--cases`` keeps the cases whose name starts with one of the given prefixes (``f1``,
@@ -52,12 +52,7 @@ from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points, random_bspline_points
 from swarmcurves_jax.fit import normalise
 from swarmcurves_jax.knots import make_knots
-from swarmcurves_jax.measures import (
-    curve_polyline,
-    data_polyline,
-    median_spacing,
-    sample_excursions,
-)
+from swarmcurves_jax.measures import deviations
 from swarmcurves_jax.projection import project_points
 
 REPO = Path(__file__).resolve().parents[1]
@@ -173,7 +168,7 @@ def peer_splprep(pts, n, closed):
     expected = n + DEGREE if closed else n
     if len(ctrl) != expected:
         raise RuntimeError(f"splprep returned {len(ctrl)} coefficients, expected {expected}")
-    return ctrl, np.asarray(t_out)
+    return ctrl[:n], np.asarray(t_out)  # closed: our periodic form, n distinct points
 
 
 def peer_geomdl(pts, n, closed):
@@ -193,21 +188,16 @@ PEER_FITS = {
 
 
 def curve_measures(pts, ctrl, t, closed):
-    """``error``, ``mean_deviation`` and ``max_deviation`` of a non-rational spline given
-    by its full knot vector, measured as ``fit`` measures its own curves.
-
-    Every peer's curve is a plain (clamped or periodic-unrolled) spline on ``t`` with
-    ``len(t) - k - 1`` coefficients, over the domain ``[0, 1]``; a closed one is measured
-    against the closed data polygon.
-    """
+    """``error``, ``mean_deviation`` and ``max_deviation`` of a non-rational spline on its
+    full knot vector ``t`` (clamped, or periodic with ``n`` distinct control points),
+    measured by the same code as ``fit``'s own curves."""
     ones = np.ones(len(ctrl))
-    dist, _ = project_points(pts, ctrl, ones, t, DEGREE, False)
-    samples = curve_polyline(ctrl, ones, t, DEGREE, False, median_spacing(pts, closed))
-    far, mean, _ = sample_excursions(samples, data_polyline(pts, closed))
+    dist, _ = project_points(pts, ctrl, ones, t, DEGREE, closed)
+    dev = deviations(pts, ctrl, ones, t, DEGREE, closed, dist)
     return {
         "error": float(np.mean(dist)),
-        "mean_deviation": 0.5 * (float(np.mean(dist)) + mean),
-        "max_deviation": max(float(np.max(dist)), far),
+        "mean_deviation": dev.mean_deviation,
+        "max_deviation": dev.max_deviation,
     }
 
 
@@ -388,7 +378,8 @@ def summary_lines(rows, ours_methods):
         compared = [r for r in rows if r["ours_le_best"][measure] is not None]
         lost = [r for r in compared if not r["ours_le_best"][measure]]
         verdict = "met" if not lost else "NOT met"
-        lines.append(f"- {measure}: {verdict} ({len(compared) - len(lost)} of {len(compared)} rows)")
+        kept = len(compared) - len(lost)
+        lines.append(f"- {measure}: {verdict} ({kept} of {len(compared)} rows)")
         for r in lost:
             ratio = r[measure][REFERENCE] / r["best_peer"][measure]
             lines.append(f"  - worse: {r['case']} at n = {r['n']}, {ratio:.2f}x the best peer")

@@ -42,13 +42,13 @@ def draw_fit(result, points, path: Path) -> None:
     plt.close(fig)
 
 
-def draw_choice(result, path: Path) -> None:
+def draw_choice(result, points, path: Path) -> None:
     cs = sorted(result.solutions, key=lambda c: c.n_ctrl)
     n = [c.n_ctrl for c in cs]
     fig, ax = plt.subplots(figsize=(6.4, 3.8))
     ax.semilogy(n, [c.mean_deviation for c in cs], "o-", label="mean_deviation")
     ax.semilogy(n, [c.max_deviation for c in cs], "s--", label="max_deviation")
-    tol = cs[0].max_deviation / cs[0].max_deviation_pct_diag  # 1 % of the diagonal
+    tol = 0.01 * np.linalg.norm(np.ptp(result.normalised(points), axis=0))  # 1 % of the diagonal
     ax.axhline(tol, color="grey", lw=0.8)
     ax.text(n[-1], tol * 1.12, "tolerance: 1 % of the diagonal", color="grey", fontsize=8,
             ha="right")
@@ -84,7 +84,7 @@ def main(argv=None) -> int:
     print(result.table())
     args.out.mkdir(parents=True, exist_ok=True)
     draw_fit(result, points, args.out / "readme-fit.png")
-    draw_choice(result, args.out / "readme-choose.png")
+    draw_choice(result, points, args.out / "readme-choose.png")
     print(f"wrote {args.out / 'readme-fit.png'} and {args.out / 'readme-choose.png'}")
     return 0
 

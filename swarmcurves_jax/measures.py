@@ -97,20 +97,19 @@ def excursions(points, ctrl, weights, t, k, closed) -> tuple[float, float, float
     data polyline."""
     points = np.asarray(points, dtype=np.float64)
     samples = curve_polyline(ctrl, weights, t, k, closed, median_spacing(points, closed))
-    if len(points) < 2:
-        d = np.linalg.norm(samples - points[:1], axis=1)
-        return float(np.max(d)), float(np.mean(d)), float(np.sqrt(np.mean(d**2)))
     return sample_excursions(samples, data_polyline(points, closed))
 
 
 def sample_excursions(samples, polyline) -> tuple[float, float, float]:
     """``(max, arc-length mean, arc-length RMS)`` of the distances from a densely sampled
-    curve ``samples`` (M, D), in order, to the polyline with vertices ``polyline``.
-
-    For curves that are not a :class:`~.curves.Curve`, such as a peer's spline on its own
-    knots: sample it with :func:`curve_polyline`, then measure here."""
+    curve ``samples`` (M, D), in order, to the polyline with vertices ``polyline`` (a
+    single vertex: the distance to that point)."""
     samples = np.asarray(samples, dtype=np.float64)
-    d = distance_to_polyline(samples, np.asarray(polyline, dtype=np.float64))
+    polyline = np.asarray(polyline, dtype=np.float64)
+    if len(polyline) < 2:
+        d = np.linalg.norm(samples - polyline[:1], axis=1)
+    else:
+        d = distance_to_polyline(samples, polyline)
     arc = np.linalg.norm(np.diff(samples, axis=0), axis=1)
     total = float(np.sum(arc))
     if total > 0:

@@ -136,7 +136,7 @@ def test_a_reversed_input_returns_the_curve_that_was_measured(closed):
     """Input whose reverse the swarm fits (it sees the lexicographically first order): the
     curve comes back traversed like the input, so on free knots the knot vector is
     mirrored with the control points.  The returned curve's own distances to the data
-    must be the ones it reports, and it must run from the input's first point."""
+    must be the ones it reports, and its foot parameters must rise along the input."""
     if closed:
         theta = np.linspace(0, 2 * np.pi, 200, endpoint=False)
         pts = np.c_[np.cos(theta) * (1 + 0.3 * np.cos(3 * theta)), np.sin(theta)]

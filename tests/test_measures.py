@@ -115,9 +115,10 @@ def test_the_penalty_is_zero_on_the_curve_the_data_sample_and_sees_a_spike():
 
 
 def test_sample_excursions_of_a_peer_curve_are_arc_length_weighted():
-    """Samples of any curve against any polyline: a path along y = 1 for 3 units, then
-    along y = 0 for 1 unit, over the x axis: max 1, arc mean (3 * 1 + 1 * 0) / 4 (plus the
-    unit drop, whose mean distance is 1/2) and RMS by the same weights."""
+    """Samples of any curve against any polyline: over the x axis, a path 3 units along
+    y = 1, 1 unit down (mean distance 1/2) and 1 unit along y = 0, 5 units in all: max 1,
+    arc mean (3 * 1 + 1 * 1/2 + 1 * 0) / 5, RMS by the same weights (the drop's mean
+    square, by the trapezoid rule, also 1/2)."""
     samples = np.array([[0.0, 1.0], [3.0, 1.0], [3.0, 0.0], [4.0, 0.0]])
     polyline = np.array([[-1.0, 0.0], [5.0, 0.0]])
     far, mean, rms = sample_excursions(samples, polyline)
