@@ -14,12 +14,12 @@ class UnknownArgumentError(TypeError, ValueError):
     ``TypeError`` Python raises for one."""
 
 
-def check_no_unknown(unknown: dict, known) -> None:
+def check_no_unknown(unknown: dict, known, caller: str = "fit") -> None:
     if unknown:
         name = sorted(unknown)[0]
         near = difflib.get_close_matches(name, known, n=1)
         hint = f" (did you mean '{near[0]}'?)" if near else ""
-        raise UnknownArgumentError(f"fit() got an unexpected keyword argument '{name}'{hint}")
+        raise UnknownArgumentError(f"{caller}() got an unexpected keyword argument '{name}'{hint}")
 
 
 def check_bool(value, name: str) -> bool:

@@ -1,7 +1,7 @@
 """``fit_many``: many point sets, one compiled program per shape bucket, over every device.
 
 Curves are grouped by what fixes a program's shapes: dimension, open or closed, and the
-bucket length their points are padded to (:func:`swarmcurves_jax.fit.bucket_length`,
+bucket length their points are padded to (:func:`swarmcurves_jax.prepare.bucket_length`,
 less than 12.5 % padding; the padding is masked out, never resampled).  A group runs in
 calls of equal size, so it compiles once; inside a call the curves are split over the
 devices (:mod:`swarmcurves_jax.devices`) and each device loops over its share.  Every
@@ -12,18 +12,18 @@ so ``fit_many(sets, seed=s)[i]`` equals ``fit(sets[i], seed=s)`` exactly.
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import math
 from typing import Callable, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from . import pso
-from ._validation import check_bool, check_no_unknown, check_positive_int
+from ._validation import check_bool, check_positive_int
+from .assemble import collect
 from .devices import Placement
-from .fit import _OPTIONS, _collect, _launch, _options, _prepare, group_key
+from .launch import launch
+from .options import FitOptions
+from .prepare import group_key, prepare
 from .results import FitResult
 
 __all__ = ["fit_many", "padding_waste"]
@@ -31,8 +31,8 @@ __all__ = ["fit_many", "padding_waste"]
 
 def fit_many(
     point_sets,
-    cps=range(4, 11),
-    degrees=3,
+    cps=FitOptions.cps,
+    degrees=FitOptions.degrees,
     *,
     closed: bool | Sequence[bool] = False,
     seed: int | jax.Array | Sequence = 0,
@@ -40,23 +40,7 @@ def fit_many(
     batch_size: int | None = None,
     vmap_curves: int | None = None,
     on_result: Callable[[int, FitResult], object] | None = None,
-    rational: bool = False,
-    free_knots: bool = False,
-    fix_ends: bool = True,
-    init: str = "lsq",
-    refine: bool | str = True,
-    particles: int = 64,
-    iterations: int = 2000,
-    tol: float | None = None,
-    params: pso.PSOParams | None = None,
-    weight_bounds: tuple[float, float] = (1e-2, 1e2),
-    num_samples: int | None = None,
-    search_every: int = 1,
-    chunk_size: int = 200,
-    progress: bool = False,
-    max_fitness_points: int = 2000,
-    dtype=jnp.float32,
-    **unknown,
+    **options,
 ) -> list[FitResult]:
     """Fit every point set with every requested degree and control-point count.
 
@@ -86,15 +70,16 @@ def fit_many(
     on_result : callable, optional
         ``on_result(i, result)`` as soon as ``point_sets[i]`` is done (results arrive
         group by group, not in input order): write files as you go.
-    progress : bool
-        A progress bar over the curves.
+    **options
+        Any field of :class:`~swarmcurves_jax.options.FitOptions`, as for
+        :func:`~swarmcurves_jax.fit`; ``progress`` shows a bar over the curves.
 
     Returns
     -------
     list of FitResult, in the order of ``point_sets``; each ``result.batch`` says which
     call ran it and its bucket.
     """
-    check_no_unknown(unknown, _FIT_MANY_ARGS)
+    opts = FitOptions.from_keywords(dict(options, cps=cps, degrees=degrees), "fit_many")
     sets = _point_sets(point_sets)
     num = len(sets)
     each = isinstance(closed, (list, tuple, np.ndarray))
@@ -111,10 +96,8 @@ def fit_many(
     if vmap_curves is None:
         vmap_curves = 1 if _platform(place) == "cpu" else 16
     place = place._replace(batch=check_positive_int(vmap_curves, "vmap_curves"))
-    local = locals()
-    opts = _options(**{name: local[name] for name in _OPTIONS})
     preps = [
-        _prepare(points, flag, opts, seed_i, f"point_sets[{i}]")
+        prepare(points, flag, opts, seed_i, f"point_sets[{i}]")
         for i, (points, flag, seed_i) in enumerate(zip(sets, closed_flags, seeds))
     ]
     groups: dict[tuple, list[int]] = {}
@@ -126,7 +109,7 @@ def fit_many(
 
     def finish(chosen, launched, call):
         """Collect a call's results (host projections) while the next call runs."""
-        for i, result in zip(chosen, _collect(launched)):
+        for i, result in zip(chosen, collect(launched)):
             info = {
                 "call": call,
                 "curves": len(chosen),
@@ -146,7 +129,7 @@ def fit_many(
     try:
         for call, (chosen, size) in enumerate(_calls(groups, per_call, place.multiple)):
             curves = [preps[i] for i in chosen]
-            launched = _launch(curves, opts, place=place, size=size, sync=False)
+            launched = launch(curves, opts, place=place, size=size)
             if previous is not None:
                 finish(*previous)
             previous = (chosen, launched, call)
@@ -212,6 +195,3 @@ def _progress_bar(total):
 
     return tqdm(total=total, desc="curves", unit="curve", leave=False)
 
-
-#: fit_many's keyword names, for the "did you mean" of an unknown one.
-_FIT_MANY_ARGS = tuple(p for p in inspect.signature(fit_many).parameters if p != "unknown")

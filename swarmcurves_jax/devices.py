@@ -2,7 +2,7 @@
 
 A :class:`Placement` says how the arrays of a batch reach the devices and come back.  The
 batch axis (curves) is split over a one-axis ``Mesh`` of the devices; the programs run
-``shard_map`` over it (``swarmcurves_jax.fit._over_curves``), so the same call uses one
+``shard_map`` over it (:func:`swarmcurves_jax.objective.over_curves`), so the same call uses one
 CPU, several GPUs or, after ``jax.distributed.initialize``, the devices of every host.
 Multi-host: every process calls ``fit_many`` with the same inputs; each computes its own
 devices' share and all of them return every result.
@@ -10,15 +10,17 @@ devices' share and all of them return every result.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import jax
 import numpy as np
 from jax.experimental import multihost_utils
-from jax.sharding import Mesh, NamedSharding
+from jax.sharding import Mesh, NamedSharding, SingleDeviceSharding
 from jax.sharding import PartitionSpec as P
 
-__all__ = ["Placement", "CURVES_AXIS", "cpu_devices"]
+__all__ = ["Placement", "CURVES_AXIS", "cpu_devices", "host_map"]
 
 #: The mesh axis the batch of curves is split along.
 CURVES_AXIS = "curves"
@@ -70,6 +72,15 @@ class Placement(NamedTuple):
         """Host arrays every device needs whole."""
         return self._put(tree, P())
 
+    def abstract(self, shape, dtype) -> jax.ShapeDtypeStruct:
+        """What :meth:`curves` makes of a host array of ``shape`` and ``dtype``, without the
+        array: enough to trace a program for it."""
+        if self.mesh is None:
+            sharding = SingleDeviceSharding(self.device or jax.devices()[0])
+        else:
+            sharding = NamedSharding(self.mesh, P(CURVES_AXIS))
+        return jax.ShapeDtypeStruct(shape, dtype, sharding=sharding)
+
     def _put(self, tree, spec):
         if self.mesh is None:
             return jax.device_put(tree, self.device)
@@ -87,3 +98,17 @@ class Placement(NamedTuple):
         if jax.process_count() > 1:
             return multihost_utils.process_allgather(tree, tiled=True)
         return jax.device_get(tree)
+
+
+def host_map(fn, items) -> list:
+    """``[fn(x) for x in items]``, in order, on a thread per CPU: the host's per-swarm
+    work (least-squares seeds, true projections) comes before and after a lone fit's swarm
+    program, and its k-d tree queries and LAPACK solves release Python's lock.  Measured
+    on W1 (2 cores, warm): seeds 0.27 -> 0.19 s, projections 0.18 -> 0.13 s, the same
+    curves bit for bit."""
+    items = list(items)
+    workers = min(len(items), os.cpu_count() or 1)
+    if workers < 2:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(fn, items))

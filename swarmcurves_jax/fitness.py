@@ -1,21 +1,14 @@
 """The swarm's fitness: mean point-to-curve distance, computed in JAX without gathers.
 
-Between two knots a B-spline (or the numerator and denominator of a NURBS) is one
-polynomial, so each swarm's basis is precomputed as a table: per knot span, the matrix
-that maps control points to that span's power coefficients in a local parameter
-``tau in [0, 1]``.  Adjacent spans of a degree-``k`` spline differ by a multiple of
-``(tau - knot)**k``, so two more rows per span (those jumps) extend a span's polynomial
-exactly into both neighbours.
-
-Per particle, the curve is sampled a few times per span; each data point takes the
-sample whose tangent segment is nearest (:func:`nearest_sample`), which fixes its span
-and a start parameter (in 2D, the foot on that segment: a Gauss-Newton step taken by the
-search itself, :func:`search_starts`); then a few safeguarded Newton steps on that span's
-exact polynomial (allowed one span either way) find the foot point.  The distance is to
-a true point of the curve, so the fitness never undercuts the true mean distance; the reported
-errors are still recomputed on the host (:mod:`swarmcurves_jax.projection`).  A polygon's
-samples are its segments, so its search is its exact distance
-(:func:`polyline_distances`), with nothing to refine.
+Per particle, the curve is sampled a few times per span (:mod:`.span_basis`); each data
+point takes the sample whose tangent segment is nearest (:func:`nearest_sample`), which
+fixes its span and a start parameter (in 2D, the foot on that segment: a Gauss-Newton
+step taken by the search itself, :func:`search_starts`); then a few safeguarded Newton
+steps on that span's exact polynomial (allowed one span either way) find the foot point.
+The distance is to a true point of the curve, so the fitness never undercuts the true
+mean distance; the reported errors are still recomputed on the host
+(:mod:`swarmcurves_jax.projection`).  A polygon's samples are its segments, so its search
+is its exact distance (:func:`polyline_distances`), with nothing to refine.
 
 Written for XLA:CPU speed, measured on workload W1 (``benchmarks/bench_w1.py``): the
 per-point span coefficients come from a chain of ``where`` over the spans rather than a
@@ -25,21 +18,11 @@ everything after the search fuses into one loop over the points.
 
 from __future__ import annotations
 
-import math
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
-import numpy as np
-
-from .basis import derivative_bases, design_matrices
-from .knots import breakpoints, knots_from_widths, make_knots, span_widths
+from .span_basis import PRECISION, SpanBasis, homogeneous, curve_samples
 
 __all__ = [
-    "SpanBasis",
-    "make_span_basis",
-    "free_knot_basis",
-    "curve_samples",
     "nearest_sample",
     "nearest_sample_dense",
     "search_starts",
@@ -47,23 +30,8 @@ __all__ = [
     "polyline_distances",
     "foot_samples",
     "point_distances",
-    "Polyline",
-    "data_segments",
-    "sample_excursions",
-    "excursion",
     "NEWTON_STEPS",
 ]
-
-#: The precision of every matrix product here: float32 on every backend.  XLA:GPU's
-#: default for a float32 product is TF32 (a 10-bit mantissa), which moved the curve by
-#: about 1e-3 of its size, so that the fitness undercut the true distance (measured on an
-#: H100: ``tests/test_fitness.py`` failed, W1's cubic ended 2.7x worse); XLA:CPU ignores it.
-PRECISION = jax.lax.Precision.HIGHEST
-
-
-def float32_matmul(a, b, xp=jnp):
-    """``a @ b``, in float32 (:data:`PRECISION`) where ``xp`` is ``jax.numpy``."""
-    return a @ b if xp is np else jnp.matmul(a, b, precision=PRECISION)
 
 
 #: Newton steps from the searched sample's centre: measured on W1's least-squares curves,
@@ -73,164 +41,6 @@ def float32_matmul(a, b, xp=jnp):
 #: paid for (measured, ``benchmarks/fitness_accuracy.py``: median over-estimate 1.7e-6
 #: with it and two steps, 5.4e-6 from the centre with three).
 NEWTON_STEPS = 3
-
-
-class SpanBasis(NamedTuple):
-    """One swarm's basis as per-span polynomials, padded to ``S`` spans and ``n_pad``
-    control points (a leading swarm axis when stacked).
-
-    ``table`` (S, K + 3, n_pad): rows ``0..K`` map control points to the power
-    coefficients of span ``s`` in ``tau``; row ``K+1`` to the jump added as
-    ``(tau - 1)**k`` past the span's end, row ``K+2`` as ``tau**k`` before its start
-    (``K``: the largest degree of the program, ``k`` this swarm's).
-    ``lo, hi`` (S,): how far ``tau`` may go (into the neighbours, not past a curve end;
-    a polygon stops at its corners).  ``degree`` (K + 1,): one-hot of ``k``.
-    ``sample_value, sample_tangent`` (M, n_pad): the search samples (``per_span`` in each
-    of the ``num_spans`` spans, the rest repeating the last) and their tangents scaled to
-    half the sample spacing.
-    """
-
-    table: jax.Array
-    lo: jax.Array
-    hi: jax.Array
-    degree: jax.Array
-    sample_value: jax.Array
-    sample_tangent: jax.Array
-    per_span: jax.Array
-    num_spans: jax.Array
-
-
-def _span_basis(power, widths, num_spans, k: int, closed: bool, num_samples: int, xp):
-    """A :class:`SpanBasis` from the power coefficients ``power`` (S, K + 1, n_pad) of
-    each span and the spans' ``widths`` (S,); spans past ``num_spans`` repeat the last.
-    Written against ``xp`` (NumPy on the host, ``jax.numpy`` for free knots)."""
-    size, rows, _ = power.shape
-    s = xp.arange(size)
-    last = num_spans - 1
-    own = xp.minimum(s, last)
-    if closed:
-        nxt, prv = (own + 1) % num_spans, (own - 1) % num_spans
-        has_next = has_prev = s >= 0
-    else:
-        nxt, prv = xp.minimum(own + 1, last), xp.maximum(own - 1, 0)
-        has_next, has_prev = own < last, own > 0
-    w = widths[own]
-    lead = power[:, k, :]
-    jump_next = lead[nxt] * ((w / widths[nxt]) ** k)[:, None] - lead[own]
-    jump_prev = lead[prv] * ((w / widths[prv]) ** k)[:, None] - lead[own]
-    table = xp.concatenate(
-        [
-            power[own],
-            (jump_next * has_next[:, None])[:, None, :],
-            (jump_prev * has_prev[:, None])[:, None, :],
-        ],
-        axis=1,
-    )
-    if k == 1:  # a polygon's segments are searched exactly: its corners bound the step
-        lo, hi = xp.zeros(size), xp.ones(size)
-    else:
-        lo = xp.where(has_prev, -widths[prv] / w, 0.0)
-        hi = xp.where(has_next, 1.0 + widths[nxt] / w, 1.0)
-    # Search samples: `per` in each span at tau = (i + 1/2) / per, as a one-hot matrix
-    # over (span, power) so that free knots need no gather either.
-    per = num_samples // num_spans
-    m = xp.minimum(xp.arange(num_samples), num_spans * per - 1)
-    span = m // per
-    inv = 1.0 / per  # then products: see _span_and_start
-    tau = (m - span * per + 0.5) * inv
-    p = xp.arange(rows)[None, :]
-    hot = (span[:, None] == s[None, :]).astype(power.dtype)  # (M, S)
-    value = hot[:, :, None] * (tau[:, None] ** p)[:, None, :]
-    slope = hot[:, :, None] * (p * tau[:, None] ** xp.maximum(p - 1, 0) * 0.5 * inv)[:, None, :]
-    flat = power[own].reshape(size * rows, -1)
-    return SpanBasis(
-        table=table,
-        lo=lo,
-        hi=hi,
-        degree=(p[0] == k).astype(power.dtype),
-        sample_value=float32_matmul(value.reshape(num_samples, -1), flat, xp),
-        sample_tangent=float32_matmul(slope.reshape(num_samples, -1), flat, xp),
-        per_span=xp.asarray(per, dtype=xp.int32),
-        num_spans=xp.asarray(num_spans, dtype=xp.int32),
-    )
-
-
-def make_span_basis(
-    n: int,
-    k: int,
-    closed: bool,
-    num_samples: int,
-    n_pad: int | None = None,
-    num_spans_pad: int | None = None,
-    max_degree: int | None = None,
-) -> SpanBasis:
-    """Host-side (NumPy float64) :class:`SpanBasis` on the uniform knots
-    (:func:`~swarmcurves_jax.knots.make_knots`), padded to ``n_pad`` control points,
-    ``num_spans_pad`` spans and ``max_degree``."""
-    n_pad = n if n_pad is None else n_pad
-    t = make_knots(n, k, closed)
-    breaks = breakpoints(t)
-    spans = len(breaks) - 1
-    size = spans if num_spans_pad is None else num_spans_pad
-    rows = k + 1 if max_degree is None else max_degree + 1
-    if num_samples < spans or size < spans or rows < k + 1:
-        raise ValueError(
-            f"num_samples must be >= the {spans} knot spans of n={n}, degree {k} "
-            f"(got {num_samples}); padding must not be smaller than the basis"
-        )
-    widths = np.diff(breaks)
-    power = np.zeros((size, rows, n_pad))
-    for nu, b in enumerate(design_matrices(breaks[:-1], t, k, k, closed=closed)):  # span starts
-        power[:spans, nu, :n] = b * (widths**nu / math.factorial(nu))[:, None]
-    widths = np.r_[widths, np.ones(size - spans)]
-    return _span_basis(power, widths, spans, k, closed, num_samples, np)
-
-
-def free_knot_basis(
-    logits: jax.Array,
-    num_spans: jax.Array,
-    k: int,
-    closed: bool,
-    num_samples: int,
-    n_pad: int,
-) -> SpanBasis:
-    """:func:`make_span_basis` for free knots, in JAX, differentiable in ``logits``.
-
-    ``logits`` (S_pad,) place the breakpoints (:func:`~swarmcurves_jax.knots.span_widths`);
-    ``num_spans`` (traced) is ``n - k`` open, ``n`` closed.  Every span gets the samples a
-    uniform span would, so narrow spans stay covered.
-    """
-    logits = logits[: n_pad if closed else n_pad - k]  # the most spans n_pad columns allow
-    widths = span_widths(logits, num_spans, jnp)
-    t = knots_from_widths(widths, num_spans, k, closed, jnp)
-    size = logits.shape[0]
-    own = jnp.minimum(jnp.arange(size), num_spans - 1)
-    start = t[own + k]
-    rows = []
-    for nu, b in enumerate(derivative_bases(start, t, k, k, own + k, jnp)):
-        if closed:  # basis function c drives control point c mod n
-            cols = jnp.arange(b.shape[1]) % num_spans
-            b = float32_matmul(b, (cols[:, None] == jnp.arange(n_pad)[None, :]).astype(b.dtype))
-        rows.append(b[:, :n_pad] * (widths[own] ** nu / math.factorial(nu))[:, None])
-    safe = jnp.where(jnp.arange(size) < num_spans, widths, 1.0)
-    return _span_basis(jnp.stack(rows, axis=1), safe, num_spans, k, closed, num_samples, jnp)
-
-
-def _homogeneous(ctrl: jax.Array, weights: jax.Array | None) -> jax.Array:
-    """Control points as the columns the polynomials act on: ``(w P, w)`` when rational."""
-    if weights is None:
-        return ctrl
-    return jnp.concatenate([ctrl * weights[:, None], weights[:, None]], axis=1)
-
-
-def curve_samples(ctrl: jax.Array, weights: jax.Array | None, basis: SpanBasis):
-    """The search samples (M, D) and their tangent segments' half vectors (M, D)."""
-    if weights is None:
-        return float32_matmul(basis.sample_value, ctrl), float32_matmul(basis.sample_tangent, ctrl)
-    hom = _homogeneous(ctrl, weights)
-    a, da = float32_matmul(basis.sample_value, hom), float32_matmul(basis.sample_tangent, hom)
-    value = a[:, :-1] / a[:, -1:]
-    return value, (da[:, :-1] - value * da[:, -1:]) / a[:, -1:]
 
 
 #: Sample coordinates per unrolled block of the search (96 samples in 2D, 64 in 3D).
@@ -545,7 +355,7 @@ def point_distances(
     if degree == 1 and weights is None and foot is None:  # a polygon: exact at once
         return polyline_distances(points, *curve_samples(ctrl, None, basis))
     dim = points.shape[1]
-    hom = _homogeneous(ctrl, weights)
+    hom = homogeneous(ctrl, weights)
     u = search_starts(points, *curve_samples(ctrl, weights, basis)) if foot is None else foot
     span, tau = _span_and_start(u, basis, points.dtype, barrier)
     coef = jnp.einsum("srn,nc->src", basis.table, hom, precision=PRECISION)  # (S, K+3, cols)
@@ -632,86 +442,3 @@ def point_distances(
     return jnp.sqrt(jnp.minimum(q2, r2) + 1e-30)  # + a normal float: finite gradient at 0
 
 
-class Polyline(NamedTuple):
-    """The polyline through the ordered data as the fitness sees it, one row per segment
-    (``B``: the padded point count): ``start`` (B, D), ``vec`` (B, D) to its end,
-    ``slope`` (B, D) ``vec / |vec|**2`` and ``allowance2`` (B,), the square of how far a
-    curve may stray from it unpenalised (``-inf`` on rows that are no segment, so that
-    none of them is ever the nearest)."""
-
-    start: jax.Array
-    vec: jax.Array
-    slope: jax.Array
-    allowance2: jax.Array
-
-
-#: A segment's allowance is ``h * (ALLOWANCE_BASE + tan(turn / 4) / 2) + rough``, ``h``
-#: its length, ``turn`` the larger turning angle at its ends (at most 3 rad) and
-#: ``rough`` the larger distance of an end from the chord of its two neighbours: the
-#: sagitta ``h tan(turn / 4) / 2`` of a circular arc through its ends that turns as the
-#: data do, a tenth of the segment, and the data's own scatter (noise zig-zags the
-#: polyline about the curve).  So the smooth curve the data sample stays inside the
-#: allowance, and a loop or a spike leaves it.
-ALLOWANCE_BASE = 0.1
-
-
-def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
-    """The :class:`Polyline` through the real points (``mask`` 1; padding after them), in
-    order, back to the first for a ``closed`` curve."""
-    size = points.shape[0]
-    count = jnp.sum(mask).astype(jnp.int32)
-    idx = jnp.arange(size)
-    segments = count if closed else count - 1
-    nxt = jnp.where((idx + 1 < count)[:, None], jnp.roll(points, -1, axis=0), points[0])
-    vec = nxt - points
-    len2 = jnp.sum(vec * vec, axis=1)
-    unit = vec / jnp.sqrt(jnp.maximum(len2, 1e-30))[:, None]
-    last = segments - 1
-    before = jnp.where(idx == 0, last if closed else 0, idx - 1)
-    after = jnp.where(idx < last, idx + 1, 0 if closed else idx)
-
-    def turn(other):  # the angle between each segment and another (0 with itself)
-        return jnp.arccos(jnp.clip(jnp.sum(unit * unit[other], axis=1), -1.0, 1.0))
-
-    bend = jnp.minimum(jnp.maximum(turn(before), turn(after)), 3.0)
-    # each vertex's distance from the chord of its neighbours (the segment before it
-    # and this one): its scatter; at an open curve's ends, none
-    chord = vec + vec[before]
-    along = jnp.clip(
-        jnp.sum(vec[before] * chord, axis=1) / jnp.maximum(jnp.sum(chord * chord, axis=1), 1e-30),
-        0.0,
-        1.0,
-    )
-    off = vec[before] - along[:, None] * chord
-    scatter = jnp.where(before != idx, jnp.sqrt(jnp.sum(off * off, axis=1)), 0.0)
-    rough = jnp.maximum(scatter, scatter[after])
-    allowance = jnp.sqrt(len2) * (ALLOWANCE_BASE + 0.5 * jnp.tan(0.25 * bend)) + rough
-    allowance2 = jnp.where(idx < segments, allowance * allowance, -jnp.inf)
-    return Polyline(points, vec, vec / jnp.maximum(len2, 1e-30)[:, None], allowance2)
-
-
-def sample_excursions(
-    samples: jax.Array, tangents: jax.Array, basis: SpanBasis, polyline: Polyline
-) -> tuple[jax.Array, jax.Array]:
-    """How far each curve sample strays beyond the data polyline's allowance, (M,), and
-    the arc length it stands for, (M,) (0 on samples that repeat the last).
-
-    The excess is ``sqrt(min over segments of max(0, d**2 - a**2))`` (``d``: the
-    distance to a segment, ``a``: its allowance): zero inside the allowance, about ``d``
-    far from it, and one square root per sample rather than per pair.
-    """
-    ap = samples[:, None, :] - polyline.start[None]
-    along = jnp.clip(jnp.sum(ap * polyline.slope[None], axis=2), 0.0, 1.0)
-    off = ap - along[..., None] * polyline.vec[None]
-    over = jnp.sum(off * off, axis=2) - polyline.allowance2[None]
-    excess = jnp.sqrt(jnp.maximum(jnp.min(over, axis=1), 0.0) + 1e-30)
-    real = jnp.arange(samples.shape[0]) < basis.per_span * basis.num_spans
-    return excess, jnp.sqrt(jnp.sum(tangents * tangents, axis=1)) * real
-
-
-def excursion(samples, tangents, basis: SpanBasis, polyline: Polyline) -> jax.Array:
-    """The arc-length mean of :func:`sample_excursions`: the swarm's penalty for a curve
-    that leaves the data between or beyond the points, which the mean point-to-curve
-    distance cannot see."""
-    excess, arc = sample_excursions(samples, tangents, basis, polyline)
-    return jnp.sum(excess * arc) / jnp.maximum(jnp.sum(arc), 1e-30)

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from .fitness import float32_matmul
+from .span_basis import float32_matmul
 
 __all__ = ["METHODS", "Problem", "levenberg_marquardt", "lbfgs"]
 

@@ -1,0 +1,178 @@
+"""The last stage: solutions measured on the host, selected, and returned as curves.
+
+Every swarm's best position, and its polished one, are measured by true projection both
+ways (:mod:`swarmcurves_jax.projection`, :mod:`swarmcurves_jax.measures`) in float64;
+:func:`select` keeps one per swarm; :func:`make_curve` maps it back to the caller's
+frame, oriented like the input; :func:`collect` builds each curve's
+:class:`~swarmcurves_jax.results.FitResult`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from .curves import Curve
+from .devices import host_map
+from .launch import Launched
+from .layout import Layout, knot_vector
+from .measures import Deviations, deviations
+from .projection import project_points
+from .results import FitResult
+
+__all__ = ["Candidate", "Measured", "collect", "select", "measure", "make_curve"]
+
+
+class Candidate(NamedTuple):
+    """A swarm's solution as the device left it: its flat position and its fitness."""
+
+    position: np.ndarray
+    fitness: float
+    polished: bool
+
+
+class Measured(NamedTuple):
+    """A candidate measured on the host (normalised frame, float64)."""
+
+    candidate: Candidate
+    ctrl: np.ndarray
+    weights: np.ndarray
+    knots: np.ndarray
+    distances: np.ndarray  # each point's distance to the curve
+    feet: np.ndarray  # each point's foot parameter
+    deviation: Deviations
+
+
+def collect(run: Launched) -> list[FitResult]:
+    """Wait for a launched call and build its results on the host (true projections)."""
+    preps, opts, place, progress = run.preps, run.opts, run.place, run.progress
+    pairs = preps[0].pairs
+    state = progress.state
+    swarm = place.get((state.best_position, state.best_fitness, state.step))
+    polished = None if run.polished is None else place.get(run.polished)
+    timings = dict(run.timings)
+    if "swarm" in timings:
+        if polished is not None:
+            timings["refine"] = time.perf_counter() - run.start - timings["swarm"]
+    else:
+        timings["call"] = time.perf_counter() - run.start  # swarm and polish, queued
+    history = np.concatenate(place.get(progress.history), axis=2)
+    results = []
+    for b, prep in enumerate(preps):
+
+        def solution(i, b=b, prep=prep):
+            best = Candidate(swarm[0][b, i], float(swarm[1][b, i]), False)
+            other = None if polished is None else Candidate(polished[0][b, i], float(polished[1][b, i]), True)
+            k, n = pairs[i]
+            chosen = select(best, other, lambda c: measure(c, k, n, prep.space, prep.norm_pts))
+            return make_curve(chosen, k, n, int(swarm[2][b, i]), prep)
+
+        solutions = host_map(solution, range(len(pairs)))
+        # What the curve would have reported alone: a lone fit stops after the chunk in
+        # which it reaches tol.
+        stopped, reason = progress.stopped[b], run.stop_reason
+        if stopped >= 0 and reason != "interrupted":
+            reason = "tol"
+        ran = min(stopped if stopped >= 0 else progress.done, opts.iterations)
+        results.append(
+            FitResult(
+                solutions=solutions,
+                points=prep.points,
+                center=prep.center,
+                scale=prep.scale,
+                history=history[b, :, :ran].astype(np.float64),
+                stop_reason=reason,
+                seed=prep.seed_value,
+                wall_time=time.perf_counter() - run.start,
+                timings=timings,
+            )
+        )
+    return results
+
+
+def select(best: Candidate, polished: Candidate | None, measure) -> Measured:
+    """The solution a swarm reports: its best, or its polished one if that one's fitness
+    is lower and then also its two-sided ``mean_deviation``.  The fitness is the device's
+    estimate, and the one-sided error cannot see a polish that lowers it by sending a
+    stretch of curve away from the data; ``measure(candidate)`` measures on the host."""
+    options = [best]
+    if polished is not None and polished.fitness < best.fitness:
+        options.append(polished)
+    measured = [measure(c) for c in options]
+    nan_last = lambda m: math.inf if math.isnan(m.deviation.mean_deviation) else m.deviation.mean_deviation  # noqa: E731
+    return min(measured, key=nan_last)
+
+
+def measure(candidate: Candidate, k: int, n: int, space: Layout, norm_pts) -> Measured:
+    """A candidate un-padded and measured both ways against the normalised points."""
+    q = np.asarray(candidate.position, dtype=np.float64)
+    t = knot_vector(q, k, n, space)
+    ctrl, log_w = space.split(q)
+    ctrl = ctrl[:n]
+    weights = np.ones(n) if log_w is None else np.exp(log_w[:n] - log_w[:n].max())
+    dist, foot = project_points(norm_pts, ctrl, weights, t, k, space.closed)
+    dev = deviations(norm_pts, ctrl, weights, t, k, space.closed, dist)
+    return Measured(candidate, ctrl, weights, t, dist, foot, dev)
+
+
+def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:
+    """The selected solution as a :class:`Curve` in the caller's frame, traversed like the
+    input."""
+    ctrl, weights, t, closed, space = m.ctrl, m.weights, m.knots, prep.closed, prep.space
+    if _runs_backwards(m.feet, closed):  # same geometry, traversed like the input
+        ctrl, weights, t = _reversed(ctrl, weights, t, k, closed, bool(space.num_knots))
+    diag = float(np.linalg.norm(np.ptp(prep.norm_pts, axis=0)))
+    dist, dev = m.distances, m.deviation
+    error = float(np.mean(dist))
+    pct = lambda x: 100.0 * x / diag if diag > 0 else (0.0 if x == 0 else math.inf)  # noqa: E731
+    return Curve(
+        degree=k,
+        control_points=prep.center + prep.scale * ctrl,
+        weights=weights,
+        knots=t,
+        closed=closed,
+        rational=space.rational,
+        error=error,
+        max_error=float(np.max(dist)),
+        rms_error=float(np.sqrt(np.mean(dist**2))),
+        error_pct_diag=pct(error),
+        mean_deviation=dev.mean_deviation,
+        max_deviation=dev.max_deviation,
+        max_deviation_pct_diag=pct(dev.max_deviation),
+        residuals=dist,
+        info={
+            "iterations": steps,
+            "fitness": m.candidate.fitness,
+            "refined": m.candidate.polished,
+            "seed": prep.seed_value,
+            "max_excursion": dev.max_excursion,
+            "rms_excursion": dev.rms_excursion,
+        },
+    )
+
+
+def _runs_backwards(foot: np.ndarray, closed: bool) -> bool:
+    """Whether the data's foot-point parameters mostly decrease along the data's order.
+
+    A majority vote of the steps' signs: their sum would telescope to last minus first,
+    which says nothing when the input's ends coincide.
+    """
+    steps = np.diff(foot)
+    if closed:
+        steps = (steps + 0.5) % 1.0 - 0.5
+    return int(np.sum(np.sign(steps))) < 0
+
+def _reversed(ctrl, weights, t, k: int, closed: bool, free_knots: bool):
+    """The same curve traversed the other way: control points and weights reversed and,
+    on free (non-uniform) knots, the knot vector mirrored, ``1 - t[::-1]``, with a closed
+    curve's control points rolled by ``k`` to line up with the mirrored periodic knots.
+    Uniform knots are their own mirror, and a uniform closed curve needs no roll."""
+    ctrl, weights = ctrl[::-1], weights[::-1]
+    if not free_knots:
+        return ctrl, weights, t
+    if closed:
+        ctrl, weights = np.roll(ctrl, k, axis=0), np.roll(weights, k)
+    return ctrl, weights, 1.0 - t[::-1]

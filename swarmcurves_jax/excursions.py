@@ -1,0 +1,99 @@
+"""How far a curve strays from the polyline through its data: the excursion term.
+
+The mean point-to-curve distance cannot see a stretch of curve that no point projects
+onto; a loop or a spike between two points costs it nothing.  The swarm and the polish
+add the arc-length mean of how far each curve sample lies beyond an allowance around the
+data polyline (:func:`excursion`), so a curve that leaves the data is worse.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .span_basis import SpanBasis
+
+__all__ = ["ALLOWANCE_BASE", "Polyline", "data_segments", "sample_excursions", "excursion"]
+
+
+class Polyline(NamedTuple):
+    """The polyline through the ordered data as the fitness sees it, one row per segment
+    (``B``: the padded point count): ``start`` (B, D), ``vec`` (B, D) to its end,
+    ``slope`` (B, D) ``vec / |vec|**2`` and ``allowance2`` (B,), the square of how far a
+    curve may stray from it unpenalised (``-inf`` on rows that are no segment, so that
+    none of them is ever the nearest)."""
+
+    start: jax.Array
+    vec: jax.Array
+    slope: jax.Array
+    allowance2: jax.Array
+
+#: A segment's allowance is ``h * (ALLOWANCE_BASE + tan(turn / 4) / 2) + rough``, ``h``
+#: its length, ``turn`` the larger turning angle at its ends (at most 3 rad) and
+#: ``rough`` the larger distance of an end from the chord of its two neighbours: the
+#: sagitta ``h tan(turn / 4) / 2`` of a circular arc through its ends that turns as the
+#: data do, a tenth of the segment, and the data's own scatter (noise zig-zags the
+#: polyline about the curve).  So the smooth curve the data sample stays inside the
+#: allowance, and a loop or a spike leaves it.
+ALLOWANCE_BASE = 0.1
+
+def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
+    """The :class:`Polyline` through the real points (``mask`` 1; padding after them), in
+    order, back to the first for a ``closed`` curve."""
+    size = points.shape[0]
+    count = jnp.sum(mask).astype(jnp.int32)
+    idx = jnp.arange(size)
+    segments = count if closed else count - 1
+    nxt = jnp.where((idx + 1 < count)[:, None], jnp.roll(points, -1, axis=0), points[0])
+    vec = nxt - points
+    len2 = jnp.sum(vec * vec, axis=1)
+    unit = vec / jnp.sqrt(jnp.maximum(len2, 1e-30))[:, None]
+    last = segments - 1
+    before = jnp.where(idx == 0, last if closed else 0, idx - 1)
+    after = jnp.where(idx < last, idx + 1, 0 if closed else idx)
+
+    def turn(other):  # the angle between each segment and another (0 with itself)
+        return jnp.arccos(jnp.clip(jnp.sum(unit * unit[other], axis=1), -1.0, 1.0))
+
+    bend = jnp.minimum(jnp.maximum(turn(before), turn(after)), 3.0)
+    # each vertex's distance from the chord of its neighbours (the segment before it
+    # and this one): its scatter; at an open curve's ends, none
+    chord = vec + vec[before]
+    along = jnp.clip(
+        jnp.sum(vec[before] * chord, axis=1) / jnp.maximum(jnp.sum(chord * chord, axis=1), 1e-30),
+        0.0,
+        1.0,
+    )
+    off = vec[before] - along[:, None] * chord
+    scatter = jnp.where(before != idx, jnp.sqrt(jnp.sum(off * off, axis=1)), 0.0)
+    rough = jnp.maximum(scatter, scatter[after])
+    allowance = jnp.sqrt(len2) * (ALLOWANCE_BASE + 0.5 * jnp.tan(0.25 * bend)) + rough
+    allowance2 = jnp.where(idx < segments, allowance * allowance, -jnp.inf)
+    return Polyline(points, vec, vec / jnp.maximum(len2, 1e-30)[:, None], allowance2)
+
+def sample_excursions(
+    samples: jax.Array, tangents: jax.Array, basis: SpanBasis, polyline: Polyline
+) -> tuple[jax.Array, jax.Array]:
+    """How far each curve sample strays beyond the data polyline's allowance, (M,), and
+    the arc length it stands for, (M,) (0 on samples that repeat the last).
+
+    The excess is ``sqrt(min over segments of max(0, d**2 - a**2))`` (``d``: the
+    distance to a segment, ``a``: its allowance): zero inside the allowance, about ``d``
+    far from it, and one square root per sample rather than per pair.
+    """
+    ap = samples[:, None, :] - polyline.start[None]
+    along = jnp.clip(jnp.sum(ap * polyline.slope[None], axis=2), 0.0, 1.0)
+    off = ap - along[..., None] * polyline.vec[None]
+    over = jnp.sum(off * off, axis=2) - polyline.allowance2[None]
+    excess = jnp.sqrt(jnp.maximum(jnp.min(over, axis=1), 0.0) + 1e-30)
+    real = jnp.arange(samples.shape[0]) < basis.per_span * basis.num_spans
+    return excess, jnp.sqrt(jnp.sum(tangents * tangents, axis=1)) * real
+
+def excursion(samples, tangents, basis: SpanBasis, polyline: Polyline) -> jax.Array:
+    """The arc-length mean of :func:`sample_excursions`: the swarm's penalty for a curve
+    that leaves the data between or beyond the points, which the mean point-to-curve
+    distance cannot see."""
+    excess, arc = sample_excursions(samples, tangents, basis, polyline)
+    return jnp.sum(excess * arc) / jnp.maximum(jnp.sum(arc), 1e-30)
