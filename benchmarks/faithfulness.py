@@ -38,7 +38,8 @@ import numpy as np  # noqa: E402
 
 from swarmcurves_jax import Curve, fit  # noqa: E402
 from swarmcurves_jax.datasets import ANALYTIC, read_outlines  # noqa: E402
-from swarmcurves_jax.fit import least_squares_ctrl, normalise  # noqa: E402
+from swarmcurves_jax.prepare import normalise  # noqa: E402
+from swarmcurves_jax.seeds import least_squares_ctrl  # noqa: E402
 from swarmcurves_jax.knots import make_knots  # noqa: E402
 from swarmcurves_jax.measures import data_polyline, deviations  # noqa: E402
 from swarmcurves_jax.paper import TABLE1, TRUTH_SAMPLES, arc_length_samples  # noqa: E402

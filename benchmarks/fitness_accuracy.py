@@ -28,8 +28,9 @@ import numpy as np
 
 from swarmcurves_jax import make_knots, normalise
 from swarmcurves_jax.datasets import analytic_points, random_bspline_points, random_nurbs_points
-from swarmcurves_jax.fit import least_squares_ctrl
-from swarmcurves_jax.fitness import SpanBasis, make_span_basis, point_distances
+from swarmcurves_jax.seeds import least_squares_ctrl
+from swarmcurves_jax.fitness import point_distances
+from swarmcurves_jax.span_basis import SpanBasis, make_span_basis
 from swarmcurves_jax.projection import project_points
 
 RANDOM_CASES = [  # closed, n, degree, rational

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import inspect
 import json
 import math
 import platform
@@ -37,7 +36,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from swarmcurves_jax import fit  # noqa: E402
+from swarmcurves_jax.options import FitOptions  # noqa: E402
 from swarmcurves_jax.paper import (  # noqa: E402
     FIGURES,
     PAPER_PCT_DIAG,
@@ -350,7 +349,7 @@ def main(argv=None):
             ap.error(f"--cases: no case starts with any of {args.cases}")
     settings = {
         "iterations": args.iterations,
-        "particles": inspect.signature(fit).parameters["particles"].default,
+        "particles": FitOptions.particles,
         "seed": args.seed,
         "machine": f"{platform.machine()} CPU ×{jax.device_count()} "
         f"({jax.devices()[0].platform}), JAX {jax.__version__}",

@@ -20,7 +20,7 @@ curves are fitted by
   ours with free knots (``free_knots=True``), all with seed 0;
 - paper: the SwarmCurves paper's Table 1 value where one exists.
 
-The peers are fitted to the normalised points (``swarmcurves_jax.fit.normalise``) and their
+The peers are fitted to the normalised points (``swarmcurves_jax.normalise``) and their
 measures computed by the same code as ours (``project_points`` and
 ``swarmcurves_jax.measures.deviations`` on the peer's own knots and control points).
 Targets, printed: on every row ours is no worse than the best peer in ``mean_deviation``
@@ -50,7 +50,7 @@ import scipy.interpolate as si
 
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points, random_bspline_points
-from swarmcurves_jax.fit import normalise
+from swarmcurves_jax.prepare import normalise
 from swarmcurves_jax.knots import make_knots
 from swarmcurves_jax.measures import deviations
 from swarmcurves_jax.projection import project_points
@@ -223,8 +223,18 @@ def run_peer(method, pts, n, closed):
 
 def available_ours():
     """The variants of ``fit`` this version accepts (free knots may not exist yet)."""
-    accepted = inspect.signature(fit).parameters
+    accepted = _accepted()
     return [m for m, kw in OURS.items() if all(k in accepted for k in kw)]
+
+
+def _accepted() -> set:
+    """The keywords this version's ``fit`` accepts (its options type's fields, if it has one)."""
+    names = set(inspect.signature(fit).parameters)
+    try:
+        from swarmcurves_jax.options import FitOptions
+    except ImportError:
+        return names
+    return names | {f.name for f in dataclasses.fields(FitOptions)}
 
 
 def run_ours(method, case, iterations):
@@ -237,6 +247,7 @@ def run_ours(method, case, iterations):
         seed=0,
         iterations=iterations,
         **OURS[method],
+        **({"stage_timings": True} if "stage_timings" in _accepted() else {}),
     )
     timings = getattr(result, "timings", None) or {"swarm": result.wall_time}
     per_fit = len(case.cps)

@@ -30,8 +30,8 @@ def main(argv=None):
     for name in ANALYTIC:
         pts = analytic_points(name)
         for m in METHODS:
-            first = fit(pts, cps=CPS, refine=m, iterations=args.iterations)
-            again = fit(pts, cps=CPS, refine=m, iterations=args.iterations)
+            kw = dict(cps=CPS, refine=m, iterations=args.iterations, stage_timings=True)
+            first, again = fit(pts, **kw), fit(pts, **kw)
             errors[m] += [c.error for c in first.solutions]
             cold[m] += first.timings.get("refine", 0.0)
             warm[m] += again.timings.get("refine", 0.0)

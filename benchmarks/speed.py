@@ -64,7 +64,8 @@ from bench_w1 import cpu_model, cpu_seconds, matmul_flops  # a sibling script: r
 from swarmcurves_jax import fit
 from swarmcurves_jax.datasets import analytic_points
 from swarmcurves_jax.devices import cpu_devices
-from swarmcurves_jax.fit import _degree_groups, normalise, stack_bases
+from swarmcurves_jax.objective import stack_bases
+from swarmcurves_jax.prepare import degree_groups, normalise
 from swarmcurves_jax.fitness import (
     NEWTON_STEPS,
     foot_samples,
@@ -97,7 +98,7 @@ def w1_problem(dtype=np.float32):
     """The normalised f4 points and, per W1 degree group, its stacked span bases (padded
     to n = 10, as ``fit`` builds them) and the group's ``(k, first, stop)``."""
     pts = normalise(analytic_points("f4"))[0].astype(dtype)
-    groups = _degree_groups(W1_PAIRS, False)
+    groups = degree_groups(W1_PAIRS, False)
     bases = [stack_bases(W1_PAIRS[i:j], False, m, 10, dtype) for _, i, j, m in groups]
     return pts, groups, bases
 
@@ -391,7 +392,7 @@ def section_scaling(args, report):
 
         def run(n_it):
             cpu = cpu_seconds()
-            wall = fit(points, iterations=n_it, **kwargs).timings["swarm"]
+            wall = fit(points, iterations=n_it, stage_timings=True, **kwargs).timings["swarm"]
             return wall, cpu_seconds() - cpu
 
         cold = run(it)[0]

@@ -10,6 +10,7 @@ from .curves import SCHEMA_VERSION as SCHEMA_VERSION
 from .curves import Curve as Curve
 from .fit import fit as fit
 from .fit import normalise as normalise
+from .options import FitOptions as FitOptions
 from .knots import clamped_uniform_knots as clamped_uniform_knots
 from .knots import make_knots as make_knots
 from .knots import periodic_uniform_knots as periodic_uniform_knots
@@ -21,6 +22,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Curve",
+    "FitOptions",
     "FitResult",
     "PSOParams",
     "SCHEMA_VERSION",

@@ -65,7 +65,11 @@ def collect(run: Launched) -> list[FitResult]:
 
         def solution(i, b=b, prep=prep):
             best = Candidate(swarm[0][b, i], float(swarm[1][b, i]), False)
-            other = None if polished is None else Candidate(polished[0][b, i], float(polished[1][b, i]), True)
+            other = (
+                None
+                if polished is None
+                else Candidate(polished[0][b, i], float(polished[1][b, i]), True)
+            )
             k, n = pairs[i]
             chosen = select(best, other, lambda c: measure(c, k, n, prep.space, prep.norm_pts))
             return make_curve(chosen, k, n, int(swarm[2][b, i]), prep)
@@ -102,7 +106,9 @@ def select(best: Candidate, polished: Candidate | None, measure) -> Measured:
     if polished is not None and polished.fitness < best.fitness:
         options.append(polished)
     measured = [measure(c) for c in options]
-    nan_last = lambda m: math.inf if math.isnan(m.deviation.mean_deviation) else m.deviation.mean_deviation  # noqa: E731
+    nan_last = lambda m: (
+        math.inf if math.isnan(m.deviation.mean_deviation) else m.deviation.mean_deviation
+    )  # noqa: E731
     return min(measured, key=nan_last)
 
 
@@ -164,6 +170,7 @@ def _runs_backwards(foot: np.ndarray, closed: bool) -> bool:
     if closed:
         steps = (steps + 0.5) % 1.0 - 0.5
     return int(np.sum(np.sign(steps))) < 0
+
 
 def _reversed(ctrl, weights, t, k: int, closed: bool, free_knots: bool):
     """The same curve traversed the other way: control points and weights reversed and,

@@ -194,4 +194,3 @@ def _progress_bar(total):
     from tqdm.auto import tqdm
 
     return tqdm(total=total, desc="curves", unit="curve", leave=False)
-

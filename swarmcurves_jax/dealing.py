@@ -26,6 +26,7 @@ def swarm_costs(pairs, groups, closed: bool, columns: int) -> np.ndarray:
         cost[i:j] = 1.25 * samples if k == 1 else samples + 5 + spans * (k + 3) * columns / 5
     return cost
 
+
 def split_swarms(groups, parts: int, cost: np.ndarray) -> list[np.ndarray]:
     """The swarms of a call dealt into at most ``parts`` sets of similar ``cost`` (per
     swarm, :func:`swarm_costs`), each set in call order.  Each set compiles a program
@@ -57,6 +58,7 @@ def split_swarms(groups, parts: int, cost: np.ndarray) -> list[np.ndarray]:
         sets[low].append(best)
         load[top] -= cost[best]
         load[low] += cost[best]
+
 
 def part_groups(groups, chosen: np.ndarray):
     """:func:`degree_groups` of the swarms ``chosen``, each group keeping the whole

@@ -74,11 +74,12 @@ class Placement(NamedTuple):
 
     def abstract(self, shape, dtype) -> jax.ShapeDtypeStruct:
         """What :meth:`curves` makes of a host array of ``shape`` and ``dtype``, without the
-        array: enough to trace a program for it."""
-        if self.mesh is None:
-            sharding = SingleDeviceSharding(self.device or jax.devices()[0])
-        else:
+        array: enough to trace and lower a program as the real call will (an array put on
+        no device in particular is uncommitted: no sharding)."""
+        if self.mesh is not None:
             sharding = NamedSharding(self.mesh, P(CURVES_AXIS))
+        else:
+            sharding = None if self.device is None else SingleDeviceSharding(self.device)
         return jax.ShapeDtypeStruct(shape, dtype, sharding=sharding)
 
     def _put(self, tree, spec):

@@ -30,6 +30,7 @@ class Polyline(NamedTuple):
     slope: jax.Array
     allowance2: jax.Array
 
+
 #: A segment's allowance is ``h * (ALLOWANCE_BASE + tan(turn / 4) / 2) + rough``, ``h``
 #: its length, ``turn`` the larger turning angle at its ends (at most 3 rad) and
 #: ``rough`` the larger distance of an end from the chord of its two neighbours: the
@@ -38,6 +39,7 @@ class Polyline(NamedTuple):
 #: polyline about the curve).  So the smooth curve the data sample stays inside the
 #: allowance, and a loop or a spike leaves it.
 ALLOWANCE_BASE = 0.1
+
 
 def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
     """The :class:`Polyline` through the real points (``mask`` 1; padding after them), in
@@ -73,6 +75,7 @@ def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
     allowance2 = jnp.where(idx < segments, allowance * allowance, -jnp.inf)
     return Polyline(points, vec, vec / jnp.maximum(len2, 1e-30)[:, None], allowance2)
 
+
 def sample_excursions(
     samples: jax.Array, tangents: jax.Array, basis: SpanBasis, polyline: Polyline
 ) -> tuple[jax.Array, jax.Array]:
@@ -90,6 +93,7 @@ def sample_excursions(
     excess = jnp.sqrt(jnp.maximum(jnp.min(over, axis=1), 0.0) + 1e-30)
     real = jnp.arange(samples.shape[0]) < basis.per_span * basis.num_spans
     return excess, jnp.sqrt(jnp.sum(tangents * tangents, axis=1)) * real
+
 
 def excursion(samples, tangents, basis: SpanBasis, polyline: Polyline) -> jax.Array:
     """The arc-length mean of :func:`sample_excursions`: the swarm's penalty for a curve

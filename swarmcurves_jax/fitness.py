@@ -272,7 +272,7 @@ def foot_samples(
     return _start(*_search_dense(points, *curve_samples(ctrl, weights, basis)), points.dtype)
 
 
-def _span_and_start(start: jax.Array, basis: SpanBasis, dtype, barrier: bool = True):
+def span_and_start(start: jax.Array, basis: SpanBasis, dtype, barrier: bool = True):
     """Each point's span (int32) and start parameter ``tau`` in it, from its search start
     ``u`` (:func:`search_starts`, in samples).
 
@@ -342,7 +342,7 @@ def point_distances(
     (cheaper: a polygon's search is its exact distance, :func:`polyline_distances`,
     unless ``foot`` is given), else read from ``basis.degree``.  ``barrier``: keep a search
     fused into the same loop from being recomputed per reader of its result; False only
-    where ``foot`` is stored, not computed in that loop (:func:`_span_and_start`).  The
+    where ``foot`` is stored, not computed in that loop (:func:`span_and_start`).  The
     same values either way.  ``uniform``: ``basis`` is on uniform knots
     (:func:`make_span_basis`), where a span's bounds are the first span's, the last's or
     (every middle span) the same as both neighbours', so two selects find them, not the
@@ -354,15 +354,24 @@ def point_distances(
     """
     if degree == 1 and weights is None and foot is None:  # a polygon: exact at once
         return polyline_distances(points, *curve_samples(ctrl, None, basis))
-    dim = points.shape[1]
-    hom = homogeneous(ctrl, weights)
     u = search_starts(points, *curve_samples(ctrl, weights, basis)) if foot is None else foot
-    span, tau = _span_and_start(u, basis, points.dtype, barrier)
-    coef = jnp.einsum("srn,nc->src", basis.table, hom, precision=PRECISION)  # (S, K+3, cols)
+    span, tau = span_and_start(u, basis, points.dtype, barrier)
+    coef = jnp.einsum(
+        "srn,nc->src", basis.table, homogeneous(ctrl, weights), precision=PRECISION
+    )  # (S, K+3, cols)
+    sel, lo, hi = _span_rows(coef, basis, span, tau, uniform)
+    curve = _span_curve(sel, basis, degree, weights is not None, points.shape[1])
+    on_segment = starts_on_segment(basis.sample_value.shape[-2], points.shape[1])
+    steps = 1 if degree == 1 and weights is None else NEWTON_STEPS - (on_segment and not stale)
+    return _newton_distances(curve, points, tau, lo, hi, steps)
+
+
+def _span_rows(coef, basis: SpanBasis, span, tau, uniform: bool):
+    """Each point's span coefficients by a chain of selects (no gather): ``rows`` lists of
+    ``cols`` arrays (N,), and the span's bounds ``lo``, ``hi`` (N,).  The coefficients are
+    unstacked in one operation, not indexed one by one: tracing under the swarm's two
+    vmaps costs about 0.2 ms per operation."""
     num_spans, rows, cols = coef.shape
-    # Each point's span rows by a chain of selects (no gather): (rows, cols) arrays (N,)
-    # and the bounds.  The coefficients are unstacked in one operation, not indexed one by
-    # one: tracing under the swarm's two vmaps costs about 0.2 ms per operation.
     width = rows * cols
     entries = jnp.unstack(coef.reshape(-1))
     span_lo, span_hi = jnp.unstack(basis.lo), jnp.unstack(basis.hi)
@@ -382,13 +391,19 @@ def point_distances(
         flat = chosen
     else:
         *flat, lo, hi = chosen
-    sel = [flat[r * cols : (r + 1) * cols] for r in range(rows)]
+    return [flat[r * cols : (r + 1) * cols] for r in range(rows)], lo, hi
+
+
+def _span_curve(sel, basis: SpanBasis, degree, rational: bool, dim: int):
+    """``curve(t, inside_span=False)``: the point, first and second derivatives (lists of
+    ``dim`` arrays (N,)) of each point's span polynomial ``sel`` (:func:`_span_rows`),
+    extended past either end by the jump terms (one span at a time)."""
+    rows, cols = len(sel), len(sel[0])
     top = rows - 3  # the degree K of the table
     after, before = sel[top + 1], sel[top + 2]
 
     def curve(t, inside_span=False):
-        """Curve point, first and second derivatives at ``t``: lists of D arrays (N,).
-        ``inside_span``: ``t`` is known to lie in ``[0, 1]`` (the searched start), where
+        """``inside_span``: ``t`` is known to lie in ``[0, 1]`` (the searched start), where
         the jump terms vanish exactly, so they are left out (measured: 3-4 % of a cubic
         group's fitness at W1's shapes, the same values)."""
         v, d1, d2 = [], [], []
@@ -410,7 +425,7 @@ def point_distances(
             for c in range(cols):
                 jump = jnp.where(past, after[c], before[c])
                 v[c], d1[c], d2[c] = v[c] + jump * pe, d1[c] + jump * dpe, d2[c] + jump * ddpe
-        if weights is None:
+        if not rational:
             return v, d1, d2
         w, dw, ddw = v[dim], d1[dim], d2[dim]
         c0 = [v[i] / w for i in range(dim)]
@@ -418,10 +433,15 @@ def point_distances(
         c2 = [(d2[i] - 2.0 * c1[i] * dw - c0[i] * ddw) / w for i in range(dim)]
         return c0, c1, c2
 
-    on_segment = starts_on_segment(basis.sample_value.shape[-2], dim)
-    steps = NEWTON_STEPS - (on_segment and not stale)
+    return curve
+
+
+def _newton_distances(curve, points, tau, lo, hi, steps: int):
+    """``steps`` safeguarded Newton steps from ``tau`` inside ``[lo, hi]``, then each
+    point's distance to the curve at its foot (or to the start, if Newton went astray)."""
+    dim = points.shape[1]
     start = None
-    for _ in range(1 if degree == 1 and weights is None else steps):  # a line: exact
+    for _ in range(steps):
         c0, c1, c2 = curve(tau, inside_span=start is None)
         q = [c0[i] - points[:, i] for i in range(dim)]
         start = q if start is None else start
@@ -440,5 +460,3 @@ def point_distances(
     q2 = sum((c0[i] - points[:, i]) ** 2 for i in range(dim))
     r2 = sum(x * x for x in start)  # the start sample itself, if Newton went astray
     return jnp.sqrt(jnp.minimum(q2, r2) + 1e-30)  # + a normal float: finite gradient at 0
-
-

@@ -186,7 +186,9 @@ def _host_batch(preps, opts: FitOptions, size: int) -> Batch:
         keys=stack("key_data"),
         pair_ids=np.array(pairs, np.int32),
         state=empty_state(size, len(pairs), opts.particles, space.size, opts.dtype),
-        inputs=Inputs(boxes, np.stack([built[id(p)][1] for p in padded]), stack("data"), stack("mask")),
+        inputs=Inputs(
+            boxes, np.stack([built[id(p)][1] for p in padded]), stack("data"), stack("mask")
+        ),
         bases=tuple(
             stack_bases(pairs[i:j], space.closed, samples, space.n_pad, opts.dtype)
             for _, i, j, samples in groups
@@ -218,7 +220,9 @@ def chunks(batch: Batch, drawn, place: Placement, opts: FitOptions, stop) -> Ite
     batch's initial draws, waited for only once the program has traced."""
     dtype, lead = opts.dtype, batch.inputs.seeds.shape[:2]
     feet = np.zeros((*lead, opts.particles, batch.inputs.data.shape[1]), dtype)
-    state, feet, inputs = place.curves((batch.state, feet if opts.search_every > 1 else (), batch.inputs))
+    state, feet, inputs = place.curves(
+        (batch.state, feet if opts.search_every > 1 else (), batch.inputs)
+    )
     tol = np.asarray(-1.0 if opts.tol is None else opts.tol, dtype)
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
     max_steps = np.asarray(opts.iterations, np.int32)
@@ -247,7 +251,9 @@ def chunks(batch: Batch, drawn, place: Placement, opts: FitOptions, stop) -> Ite
             draws = place.curves(drawn())
         state, feet, info = swarm_program(*draws, *args, **static)
         history = progress.history + (info.best_fitness,)
-        progress = progress._replace(state=state, feet=feet, history=history, done=progress.done + steps)
+        progress = progress._replace(
+            state=state, feet=feet, history=history, done=progress.done + steps
+        )
         yield progress
 
 
@@ -299,7 +305,9 @@ def _part(batch: Batch, chosen: np.ndarray) -> Batch:
         groups=groups,
         pair_ids=batch.pair_ids[chosen],
         state=pick(batch.state),
-        inputs=batch.inputs._replace(boxes=pick(batch.inputs.boxes), seeds=batch.inputs.seeds[:, chosen]),
+        inputs=batch.inputs._replace(
+            boxes=pick(batch.inputs.boxes), seeds=batch.inputs.seeds[:, chosen]
+        ),
         bases=tuple(jax.tree_util.tree_map(lambda a, w=w: a[w], batch.bases[g]) for g, w in taken),
     )
 
@@ -315,11 +323,19 @@ def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, rep
 
     def run_part(i):
         chosen = parts[i]
-        drawn = lambda: jax.tree_util.tree_map(lambda a: a[:, chosen], jax.device_get(draws.result()))  # noqa: E731
+        drawn = lambda: jax.tree_util.tree_map(
+            lambda a: a[:, chosen], jax.device_get(draws.result())
+        )  # noqa: E731
         say = None if report is None else (lambda at, best: events.put((i, at, best)))
         device = Placement(device=devices[i])
         try:
-            progress, _ = follow(chunks(_part(batch, chosen), drawn, device, opts, stop), batch.num, opts, device, say)
+            progress, _ = follow(
+                chunks(_part(batch, chosen), drawn, device, opts, stop),
+                batch.num,
+                opts,
+                device,
+                say,
+            )
         finally:
             events.put((i, None, None))  # this part is done (or failed)
         history = np.concatenate([np.asarray(h) for h in progress.history], axis=2)

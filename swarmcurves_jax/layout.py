@@ -55,9 +55,11 @@ class Layout(NamedTuple):
         ctrl = q[: self.num_ctrl].reshape(self.n_pad, self.dim)
         return ctrl, (q[self.num_ctrl : self.num_ctrl + self.n_pad] if self.rational else None)
 
+
 #: Knot logits stay in [-3, 3]: span widths then differ by up to e^6 ~ 400x before the
 #: minimum span (MIN_SPAN_FRACTION of a uniform span) takes over.
 KNOT_LOGIT_BOUND = 3.0
+
 
 def search_boxes(pairs, space: Layout, weight_bounds, ends, dtype) -> pso.Box:
     """Per-swarm search boxes.
@@ -95,6 +97,7 @@ def search_boxes(pairs, space: Layout, weight_bounds, ends, dtype) -> pso.Box:
         boxes.append(b)
     return pso.Box(*(np.array(parts, dtype) for parts in zip(*boxes)))
 
+
 def knot_vector(q, k, n, space) -> np.ndarray:
     """The knot vector of a position: fixed uniform, or from its knot logits (float64)."""
     if not space.num_knots:
@@ -103,6 +106,7 @@ def knot_vector(q, k, n, space) -> np.ndarray:
     logits = space.knot_logits(q)[: space.n_pad if space.closed else space.n_pad - k]
     t = knots_from_widths(span_widths(logits, spans), spans, k, space.closed)
     return t[: spans + 2 * k + 1]
+
 
 def geometry(q, space):
     ctrl, log_w = space.split(q)

@@ -44,6 +44,7 @@ CPU_COMPILER_OPTIONS = {
     "xla_cpu_experimental_ynn_fusion_type": "",
 }
 
+
 def distances(q, basis, points, space, pair, k, foot=None, stale=False):
     """Estimated distance of every point to the curve of position ``q``: shape (N,).
     A ``foot`` given here is stored (a branch's result, the dense search's),
@@ -62,21 +63,24 @@ def distances(q, basis, points, space, pair, k, foot=None, stale=False):
         stale=stale,
     )
 
+
 def foot_starts(q, basis, points, space, pair, k, dense=True):
     """Where each point's Newton steps start on the curve of position ``q``, in samples:
     shape (N,) float (:func:`~swarmcurves_jax.fitness.search_starts`)."""
     basis = space.basis(q, pair, k, basis)
     return foot_samples(*geometry(q, space), basis, points, dense)
 
+
 def excursion_term(q, basis, polyline: Polyline, space, pair, k, per_sample=False):
     """How far the curve of position ``q`` strays from the data polyline: the arc-length
-    mean excess (:func:`~swarmcurves_jax.fitness.excursion`), or with ``per_sample`` each
+    mean excess (:func:`~swarmcurves_jax.excursions.excursion`), or with ``per_sample`` each
     sample's excess and arc length."""
     basis = space.basis(q, pair, k, basis)
     samples, tangents = curve_samples(*geometry(q, space), basis)
     if per_sample:
         return sample_excursions(samples, tangents, basis, polyline)
     return excursion(samples, tangents, basis, polyline)
+
 
 def search_apart(space: Layout) -> bool:
     """Whether the swarm's search runs in a branch of its own every iteration, its result
@@ -95,6 +99,7 @@ def search_apart(space: Layout) -> bool:
     """
     return jax.default_backend() == "cpu" and not space.num_knots
 
+
 def paired(space: Layout, k: int) -> bool:
     """Whether the Newton steps run two points per loop trip (the points in two halves):
     where a point's span coefficients, ``(k + 3) x (dim [+ 1 if rational])`` values, are at
@@ -102,6 +107,7 @@ def paired(space: Layout, k: int) -> bool:
     15 % slower paired, a 2D rational cubic (18) 3 %; three or four parts of W1's points
     ran slower than one (4.25 and 4.40 against 3.63 s)."""
     return search_apart(space) and (k + 3) * (space.dim + space.rational) <= 16
+
 
 def by_degree(fn, groups, bases, *args):
     """``fn(*args_of_one_swarm, basis, k=degree)`` vmapped over the swarms of each degree
@@ -117,6 +123,7 @@ def by_degree(fn, groups, bases, *args):
     ]
     return jax.tree_util.tree_map(lambda *p: jnp.concatenate(p), *parts)
 
+
 def masked_mean(distances, mask, count, parts: int = 1):
     """Mean of ``distances(cut)`` over the real points: the padding (``mask`` 0) adds
     nothing.  The points are cut into ``parts`` equal slices whose distances are summed
@@ -125,11 +132,12 @@ def masked_mean(distances, mask, count, parts: int = 1):
     pass of partial sums over the stored distances, which took longer than the product
     (measured on W1, warm, interleaved in one process: 3.05 against 3.10 s).
     Times the reciprocal, not ``/ count``: see
-    :func:`swarmcurves_jax.fitness._span_and_start`."""
+    :func:`swarmcurves_jax.fitness.span_and_start`."""
     size = mask.shape[0] // parts
     d = [distances(c) * mask[c] for c in (slice(i * size, (i + 1) * size) for i in range(parts))]
     total = sum(d[1:], d[0])
     return jnp.dot(total, jnp.ones_like(total), precision=PRECISION) * (1.0 / count)
+
 
 def over_curves(fn, per_curve, shared, mesh, batch):
     """``fn(shared, *one_curve)`` for every curve along the leading axis of ``per_curve``.
@@ -155,11 +163,13 @@ def over_curves(fn, per_curve, shared, mesh, batch):
     split = jax.shard_map(local, mesh=mesh, in_specs=(spec, P()), out_specs=spec, check_vma=False)
     return split(per_curve, shared)
 
+
 def stack_bases(pairs, closed, num_samples, n_pad, dtype) -> SpanBasis:
     """The precomputed span bases (fixed knots) of swarms, stacked and padded alike;
     read-only, made once per shape (W1's three groups: 10 ms a call)."""
     key = tuple((int(k), int(n)) for k, n in pairs)
     return _stacked_bases(key, bool(closed), int(num_samples), int(n_pad), np.dtype(dtype))
+
 
 @functools.lru_cache(maxsize=64)
 def _stacked_bases(pairs, closed, num_samples, n_pad, dtype) -> SpanBasis:

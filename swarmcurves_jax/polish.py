@@ -31,6 +31,7 @@ REFINE_SAMPLES_PER_SPAN = 16
 #: Starts refined per swarm: its best, its least-squares seed, its next best particles.
 REFINE_STARTS = 4
 
+
 @functools.partial(
     jax.jit,
     static_argnames=("space", "method", "seeded", "groups", "mesh", "batch"),

@@ -46,8 +46,10 @@ def normalise(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         scale = 1.0
     return (points - center) / scale, center, scale
 
+
 #: Fitness search samples per knot span (a polygon's segments need one: searched exactly).
 SAMPLES_PER_SPAN = 4
+
 
 def default_num_samples(pairs, closed: bool, per_span: int = SAMPLES_PER_SPAN) -> int:
     """Fitness search samples for swarms of one degree: ``per_span`` per knot span of the
@@ -64,6 +66,7 @@ def default_num_samples(pairs, closed: bool, per_span: int = SAMPLES_PER_SPAN) -
     need = [(n if closed else n - k) * (1 if k == 1 else per_span) for k, n in pairs]
     return int(min(MAX_SAMPLES, max(8, *need)))
 
+
 def bucket_length(n: int) -> int:
     """The padded length of a curve of ``n`` fitness points: a multiple of 16 up to 128,
     then 8 steps per octave, so padding adds less than 12.5 % (and curves of similar
@@ -72,6 +75,7 @@ def bucket_length(n: int) -> int:
         return 16 * math.ceil(n / 16)
     step = 2 ** (n.bit_length() - 4)  # 1/8 of the octave [2^(b-1), 2^b) holding n
     return step * math.ceil(n / step)
+
 
 def degree_groups(pairs, closed, num_samples=None) -> tuple[tuple[int, int, int, int], ...]:
     """``(degree, first, stop, samples)`` of each run of equal degrees in ``pairs``
@@ -97,6 +101,7 @@ def degree_groups(pairs, closed, num_samples=None) -> tuple[tuple[int, int, int,
         (k, i, j, num_samples or default_num_samples(pairs[i:j], closed)) for k, i, j in out
     )
 
+
 class Prepared(NamedTuple):
     """One curve, ready for the device: normalisation, knots and seeds, all in NumPy."""
 
@@ -114,6 +119,7 @@ class Prepared(NamedTuple):
     ends: np.ndarray | None  # pinned end points of an open curve
     key_data: np.ndarray
     seed_value: int | None  # for reports
+
 
 def prepare(points, closed: bool, opts: FitOptions, seed, name: str) -> Prepared:
     """Validate and normalise one curve's points (cheap: the least-squares seeds are
@@ -185,9 +191,11 @@ def prepare(points, closed: bool, opts: FitOptions, seed, name: str) -> Prepared
         seed_value=int(seed) if isinstance(seed, (int, np.integer)) else None,
     )
 
+
 def group_key(prep: Prepared) -> tuple:
     """Curves with equal keys run in one compiled program (the shape bucket)."""
     return prep.space, prep.groups, len(prep.data)
+
 
 def root_key(seed) -> jax.Array:
     """The call's key from ``seed``: an int, or one JAX key of the default implementation
@@ -211,12 +219,14 @@ def root_key(seed) -> jax.Array:
         raise ValueError(f"seed must be an int or a JAX PRNG key, got {seed!r}")
     return jax.random.key(int(seed))
 
+
 def _drop_closing_duplicate(points: np.ndarray) -> np.ndarray:
     """A closed outline may repeat its first point at the end; that copy is not data."""
     span = np.ptp(points, axis=0).max()
     if len(points) > 2 and np.linalg.norm(points[-1] - points[0]) <= 1e-12 * max(span, 1.0):
         return points[:-1]
     return points
+
 
 def canonical_order(points: np.ndarray) -> np.ndarray:
     """``points`` or ``points[::-1]``, whichever is lexicographically first.

@@ -37,6 +37,7 @@ __all__ = ["SWARM_COMPILER_OPTIONS", "swarm_program", "initial_draws"]
 #: logs), and a non-finite fitness is caught by ``isfinite`` (:func:`pso.update`).
 SWARM_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {"xla_cpu_enable_fast_min_max": True}
 
+
 @functools.partial(
     jax.jit,
     static_argnames=(
@@ -104,9 +105,7 @@ def swarm_program(
             def mean(q, foot, parts=1):  # a bucket length is a multiple of 16: 2 parts fit
                 def at(cut):
                     found = None if foot is None else foot[cut]
-                    return distances(
-                        q, basis, points[cut], space, pair, k, found, search_every > 1
-                    )
+                    return distances(q, basis, points[cut], space, pair, k, found, search_every > 1)
 
                 strays = excursion_term(q, basis, polyline, space, pair, k)
                 return masked_mean(at, mask, count, parts) + strays
@@ -115,7 +114,9 @@ def swarm_program(
                 return jax.vmap(lambda q: mean(q, None))(positions), feet
 
             def searched():
-                return jax.vmap(lambda q: foot_starts(q, basis, points, space, pair, k, False))(positions)
+                return jax.vmap(lambda q: foot_starts(q, basis, points, space, pair, k, False))(
+                    positions
+                )
 
             stored = (
                 feet if search_every > 1 else jnp.zeros((len(positions), *mask.shape), points.dtype)
@@ -139,6 +140,7 @@ def swarm_program(
 
     per_curve = (keys, draws, state, feet, boxes, seeds, points, mask)
     return over_curves(one_curve, per_curve, (shared, first), mesh, batch)
+
 
 @functools.partial(
     jax.jit,

@@ -28,12 +28,14 @@ def chord_parameters(points: np.ndarray, closed: bool) -> np.ndarray:
     u = u / u[-1] if u[-1] > 0 else np.linspace(0, 1, len(pts))
     return u[:-1] if closed else u
 
+
 def _lsq(b, points, ends):
     if ends is None:
         return np.linalg.lstsq(b, points, rcond=None)[0]
     rhs = points - np.outer(b[:, 0], ends[0]) - np.outer(b[:, -1], ends[1])
     inner = np.linalg.lstsq(b[:, 1:-1], rhs, rcond=None)[0]
     return np.vstack([ends[0], inner, ends[1]])
+
 
 def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20, t=None) -> np.ndarray:
     """Linear least-squares control points with parameter correction (the swarm's seed).
@@ -64,9 +66,11 @@ def least_squares_ctrl(points, n, k, closed, ends=None, rounds: int = 20, t=None
         ctrl, last = _lsq(dense[j], points, ends), j
     return best
 
+
 def _seed_grid(closed: bool) -> np.ndarray:
     """The 2048 parameters whose curve points the seeds' correction searches."""
     return np.linspace(0.0, 1.0, 2048, endpoint=not closed)
+
 
 def uniform_grid_design(n: int, k: int, closed: bool) -> np.ndarray:
     """:func:`_seed_grid`'s design matrix on the uniform knots (read-only): the same for
@@ -74,11 +78,13 @@ def uniform_grid_design(n: int, k: int, closed: bool) -> np.ndarray:
     points (the cache then holds at most 32 MB)."""
     return (_grid_design if n <= 64 else _grid_design.__wrapped__)(n, k, closed)
 
+
 @functools.lru_cache(maxsize=32)
 def _grid_design(n: int, k: int, closed: bool) -> np.ndarray:
     dense = design_matrix(_seed_grid(closed), make_knots(n, k, closed), k, closed=closed)
     dense.setflags(write=False)
     return dense
+
 
 def seed_positions(pairs, space: Layout, norm_pts, closed, ends, dtype) -> np.ndarray:
     """One least-squares position per swarm, laid out like a particle."""

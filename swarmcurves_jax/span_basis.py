@@ -38,9 +38,11 @@ __all__ = [
 #: H100: ``tests/test_fitness.py`` failed, W1's cubic ended 2.7x worse); XLA:CPU ignores it.
 PRECISION = jax.lax.Precision.HIGHEST
 
+
 def float32_matmul(a, b, xp=jnp):
     """``a @ b``, in float32 (:data:`PRECISION`) where ``xp`` is ``jax.numpy``."""
     return a @ b if xp is np else jnp.matmul(a, b, precision=PRECISION)
+
 
 class SpanBasis(NamedTuple):
     """One swarm's basis as per-span polynomials, padded to ``S`` spans and ``n_pad``
@@ -65,6 +67,7 @@ class SpanBasis(NamedTuple):
     sample_tangent: jax.Array
     per_span: jax.Array
     num_spans: jax.Array
+
 
 def _span_basis(power, widths, num_spans, k: int, closed: bool, num_samples: int, xp):
     """A :class:`SpanBasis` from the power coefficients ``power`` (S, K + 1, n_pad) of
@@ -102,7 +105,7 @@ def _span_basis(power, widths, num_spans, k: int, closed: bool, num_samples: int
     per = num_samples // num_spans
     m = xp.minimum(xp.arange(num_samples), num_spans * per - 1)
     span = m // per
-    inv = 1.0 / per  # then products: see _span_and_start
+    inv = 1.0 / per  # then products: see span_and_start
     tau = (m - span * per + 0.5) * inv
     p = xp.arange(rows)[None, :]
     hot = (span[:, None] == s[None, :]).astype(power.dtype)  # (M, S)
@@ -119,6 +122,7 @@ def _span_basis(power, widths, num_spans, k: int, closed: bool, num_samples: int
         per_span=xp.asarray(per, dtype=xp.int32),
         num_spans=xp.asarray(num_spans, dtype=xp.int32),
     )
+
 
 def make_span_basis(
     n: int,
@@ -150,6 +154,7 @@ def make_span_basis(
     widths = np.r_[widths, np.ones(size - spans)]
     return _span_basis(power, widths, spans, k, closed, num_samples, np)
 
+
 def free_knot_basis(
     logits: jax.Array,
     num_spans: jax.Array,
@@ -179,11 +184,13 @@ def free_knot_basis(
     safe = jnp.where(jnp.arange(size) < num_spans, widths, 1.0)
     return _span_basis(jnp.stack(rows, axis=1), safe, num_spans, k, closed, num_samples, jnp)
 
+
 def homogeneous(ctrl: jax.Array, weights: jax.Array | None) -> jax.Array:
     """Control points as the columns the polynomials act on: ``(w P, w)`` when rational."""
     if weights is None:
         return ctrl
     return jnp.concatenate([ctrl * weights[:, None], weights[:, None]], axis=1)
+
 
 def curve_samples(ctrl: jax.Array, weights: jax.Array | None, basis: SpanBasis):
     """The search samples (M, D) and their tangent segments' half vectors (M, D)."""

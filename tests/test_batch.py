@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 
 from swarmcurves_jax import fit, fit_many
 from swarmcurves_jax.batch import padding_waste
-from swarmcurves_jax.fit import _swarm_program, bucket_length
+from swarmcurves_jax.prepare import bucket_length
+from swarmcurves_jax.search import swarm_program
 
 OPTS = dict(cps=[4, 6], iterations=60, particles=16)
 
@@ -81,11 +82,11 @@ def test_batched_equals_one_by_one_bit_for_bit(lone):
 
 def test_one_compiled_program_per_bucket():
     sets = [np.c_[np.linspace(0, 1, n), np.linspace(0, 1, n) ** 2] for n in (33, 40, 47, 60)]
-    before = _swarm_program._cache_size()
+    before = swarm_program._cache_size()
     opts = dict(OPTS, particles=12)  # shapes no other test compiles
     many = fit_many(sets, batch_size=2, **opts)  # buckets 48 (two calls of 2) and 64
     assert {r.batch["bucket"] for r in many} == {48, 64}
-    assert _swarm_program._cache_size() == before + 2
+    assert swarm_program._cache_size() == before + 2
     assert [r.batch["call"] for r in many] == [0, 0, 1, 2]
 
 
@@ -184,25 +185,25 @@ def test_fit_split_over_cpu_devices_matches_one_program():
     """With several CPU devices fit deals its swarms over them, one program each, and
     refines in one program: every solution, history, stop and callback equals one
     device's (in the tol case one part stops a chunk before the other)."""
-    from swarmcurves_jax.fit import _split_swarms, _swarm_costs
+    from swarmcurves_jax.dealing import split_swarms, swarm_costs
 
     # a polygon costs 1.25 a segment, a spline its samples + 5 + spans (k + 3) D / 5:
     # W1's polygons 11.25, quadratics 32 + 5 + 16 = 53, cubics 28 + 5 + 16.8 = 49.8
     w1 = [(k, n) for k in (1, 2, 3) for n in range(4, 11)]
     groups = ((1, 0, 7, 9), (2, 7, 14, 32), (3, 14, 21, 28))
-    cost = _swarm_costs(w1, groups, False, 2)
+    cost = swarm_costs(w1, groups, False, 2)
     np.testing.assert_allclose(cost[[0, 7, 14]], [11.25, 53.0, 49.8])
     # whole degrees first (the quadratics' 371 to one, the cubics' 348.6 and the polygons'
     # 78.75 to the other), then polygons over while the other stays below: 5 % below to
     # start a group there, then freely (404.75 against 393.6)
-    split = [s.tolist() for s in _split_swarms(groups, 2, cost)]
+    split = [s.tolist() for s in split_swarms(groups, 2, cost)]
     assert split == [[0, 1, 2, *range(7, 14)], [3, 4, 5, 6, *range(14, 21)]]
     # one swarm a device, but two polygons cost less than one spline swarm
     groups = ((1, 0, 3, 8), (2, 3, 6, 12), (3, 6, 9, 12))
     cost = np.r_[np.full(3, 8.0), np.full(6, 22.0)]
     expected = [[0], [1, 2], *([i] for i in range(3, 9))]
-    assert sorted(s.tolist() for s in _split_swarms(groups, 20, cost)) == expected
-    split = _split_swarms(((3, 0, 7, 28),), 2, np.full(7, 38.0))
+    assert sorted(s.tolist() for s in split_swarms(groups, 20, cost)) == expected
+    split = split_swarms(((3, 0, 7, 28),), 2, np.full(7, 38.0))
     assert [s.tolist() for s in split] == [[3, 4, 5, 6], [0, 1, 2]]
     code = """
         import json, jax

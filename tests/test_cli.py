@@ -18,7 +18,8 @@ import yaml
 
 from swarmcurves_jax.datasets import random_bspline_points
 from swarmcurves_jax.export import read_solutions
-from swarmcurves_jax.run import ConfigError, check_config, main
+from swarmcurves_jax.config import ConfigError, check_config
+from swarmcurves_jax.run import main
 
 
 def run(*args, cwd=None, timeout=300):

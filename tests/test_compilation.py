@@ -7,7 +7,7 @@ import jax
 import numpy as np
 
 from swarmcurves_jax import design_matrix, fit, make_knots
-from swarmcurves_jax.fit import _swarm_program
+from swarmcurves_jax.search import swarm_program
 
 
 class _Count(logging.Handler):
@@ -41,17 +41,17 @@ def test_mixed_degrees_and_counts_compile_one_program_once():
     pts = design_matrix(u, make_knots(6, 3, False), 3) @ np.random.default_rng(0).uniform(
         -1, 1, (6, 2)
     )
-    before = _swarm_program._cache_size()
+    before = swarm_program._cache_size()
     kwargs = dict(cps=range(4, 9), degrees=(1, 2, 3), iterations=40, chunk_size=20)
     first = compiles_during(lambda: fit(pts, **kwargs))
-    assert _swarm_program._cache_size() == before + 1  # 15 swarms, one swarm program
-    assert sum("_swarm_program" in m for m in first) == 1
+    assert swarm_program._cache_size() == before + 1  # 15 swarms, one swarm program
+    assert sum("swarm_program" in m for m in first) == 1
     second = compiles_during(lambda: fit(pts + 1.0, seed=5, **kwargs))
     assert second == []  # same shapes: nothing at all is compiled again
 
 
 def test_random_keys_and_draws_compile_apart(tmp_path):
-    """The initial draws are a small program of their own (``fit._initial_draws``, compiled
+    """The initial draws are a small program of their own (``search.initial_draws``, compiled
     once per shape): threefry compiled into every swarm program cost each about 1 s."""
     u = np.linspace(0, 1, 80)
     pts = np.c_[u, np.sin(3 * u)]
@@ -62,10 +62,10 @@ def test_random_keys_and_draws_compile_apart(tmp_path):
         )
     finally:
         jax.config.update("jax_dump_ir_to", "")
-    assert sum("_initial_draws" in m for m in first) == 1
+    assert sum("initial_draws" in m for m in first) == 1
     programs = {p.name: p.read_text() for p in tmp_path.glob("*.mlir")}
-    swarm = [text for name, text in programs.items() if "_swarm_program" in name]
-    draws = [text for name, text in programs.items() if "_initial_draws" in name]
+    swarm = [text for name, text in programs.items() if "swarm_program" in name]
+    draws = [text for name, text in programs.items() if "initial_draws" in name]
     assert swarm and draws
     assert all("threefry2x32" not in text for text in swarm)
     assert all("threefry2x32" in text for text in draws)
@@ -94,21 +94,21 @@ def test_the_programs_a_gpu_runs_lower_for_cuda(monkeypatch):
     """No GPU in CI: ``fit`` builds its programs as it would on a GPU (JAX's default backend
     says "gpu": one device, the search fused into the Newton loop) and each lowers for CUDA,
     with every matrix product in float32 (XLA:GPU's default is TF32, which undercut the
-    true distance on an H100, ``fitness.PRECISION``).  They run on the CPU here."""
-    fit_module = importlib.import_module("swarmcurves_jax.fit")
+    true distance on an H100, ``span_basis.PRECISION``).  They run on the CPU here."""
+    launch_module = importlib.import_module("swarmcurves_jax.launch")
     u = np.linspace(0, 1, 60)
     pts = np.c_[u, np.sin(3 * u)]
     kwargs = dict(cps=(5, 6), degrees=(1, 3), particles=8, iterations=10)
 
     def lowered(backend, platform, refine):
-        names = ("_initial_draws", "_swarm_program") + ("_refine_program",) * refine
+        names = ("initial_draws", "swarm_program") + ("polish_program",) * refine
         texts = {name: [] for name in names}
-        programs = [getattr(fit_module, name) for name in texts]
+        programs = [getattr(launch_module, name) for name in texts]
         try:
             with monkeypatch.context() as patch:
                 patch.setattr(jax, "default_backend", lambda: backend)
                 for program, found in zip(programs, texts.values()):
-                    patch.setattr(fit_module, program.__name__, _LowerFor(program, platform, found))
+                    patch.setattr(launch_module, program.__name__, _LowerFor(program, platform, found))
                 result = fit(pts, refine=refine, **kwargs)
         finally:  # the backend is read while tracing: no trace made here may be reused
             for program in programs:
@@ -124,6 +124,6 @@ def test_the_programs_a_gpu_runs_lower_for_cuda(monkeypatch):
         dots = [line for line in text.splitlines() if "dot_general" in line]
         assert all("precision = [HIGHEST, HIGHEST]" in line for line in dots), dots
     # The CPU's swarm runs the search in a branch of its own; a GPU's keeps it fused.
-    assert "stablehlo.case" in host["_swarm_program"]
-    assert "stablehlo.case" not in cuda["_swarm_program"]
-    assert cuda["_swarm_program"].count("dot_general") >= 4
+    assert "stablehlo.case" in host["swarm_program"]
+    assert "stablehlo.case" not in cuda["swarm_program"]
+    assert cuda["swarm_program"].count("dot_general") >= 4

@@ -8,13 +8,13 @@ from hypothesis import strategies as st
 
 from swarmcurves_jax import fit, normalise
 from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
-from swarmcurves_jax.fitness import data_segments
+from swarmcurves_jax.excursions import data_segments
 
 
 def largest_allowance(points: np.ndarray, closed: bool) -> float:
     """The most the fitness lets a curve stray from any segment of the data polyline
     unpenalised: the sagitta its turning allows, a tenth of it, and the data's scatter
-    (:data:`swarmcurves_jax.fitness.ALLOWANCE_BASE`)."""
+    (:data:`swarmcurves_jax.excursions.ALLOWANCE_BASE`)."""
     line = data_segments(jnp.asarray(points), jnp.ones(len(points)), closed)
     a2 = np.asarray(line.allowance2)
     return float(np.sqrt(np.max(a2[np.isfinite(a2)])))

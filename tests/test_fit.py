@@ -46,7 +46,7 @@ def test_seed_grid_design_is_made_once_and_read_only():
     from swarmcurves_jax import make_knots
     from swarmcurves_jax.basis import design_matrix
 
-    grid_design = importlib.import_module("swarmcurves_jax.fit")._uniform_grid_design
+    from swarmcurves_jax.seeds import uniform_grid_design as grid_design
     dense = grid_design(7, 3, True)
     assert grid_design(7, 3, True) is dense
     grid = np.linspace(0.0, 1.0, 2048, endpoint=False)
@@ -68,7 +68,7 @@ def test_seed_parameter_correction_lowers_the_true_error(seed, dim, closed):
     wrong nearest sample would leave the chord-length fit, the best round kept."""
     from swarmcurves_jax import make_knots
     from swarmcurves_jax.basis import design_matrix
-    from swarmcurves_jax.fit import least_squares_ctrl
+    from swarmcurves_jax.seeds import least_squares_ctrl
     from swarmcurves_jax.projection import project_points
 
     rng = np.random.default_rng(seed)
@@ -94,9 +94,9 @@ def test_seed_parameter_correction_lowers_the_true_error(seed, dim, closed):
 def test_stacked_bases_are_made_once_and_read_only():
     """A group's stacked span bases are a constant of their shapes, shared by every call:
     read-only, and the same arrays as stacking each swarm's basis afresh."""
-    from swarmcurves_jax.fitness import make_span_basis
+    from swarmcurves_jax.span_basis import make_span_basis
 
-    stack_bases = importlib.import_module("swarmcurves_jax.fit").stack_bases
+    from swarmcurves_jax.objective import stack_bases
     pairs = [(3, 5), (3, 8)]
     bases = stack_bases(pairs, False, 20, 10, np.float32)
     assert stack_bases([[3, 5], [3, 8]], False, 20, 10, "float32") is bases
@@ -279,22 +279,23 @@ def test_callback_without_tol_reports_every_chunk_in_order():
 def test_search_apart_agrees_with_the_fused_search(monkeypatch, rational, search_every):
     """On the CPU the swarm's search runs in a branch of its own, and the Newton steps read
     its stored result, two points per loop trip where a span has few coefficients
-    (``fit._search_apart``, ``fit._paired``).  The per-point distances are those of the
+    (``objective.search_apart``, ``objective.paired``).  The per-point distances are those of the
     fused search, only summed in another order: the first iteration's best fitness of
     every swarm agrees with the fused program's to float32 rounding."""
-    F = importlib.import_module("swarmcurves_jax.fit")  # the package's `fit` is the function
+    from swarmcurves_jax import objective, search
+    from swarmcurves_jax.layout import Layout
 
-    assert F._search_apart(F._Space(n_pad=8, dim=2, rational=rational))  # tests run on a CPU
-    assert F._paired(F._Space(n_pad=8, dim=2, rational=False), 3)
-    assert not F._paired(F._Space(n_pad=8, dim=2, rational=True), 3)  # 18 coefficients
+    assert objective.search_apart(Layout(n_pad=8, dim=2, rational=rational))  # on a CPU
+    assert objective.paired(Layout(n_pad=8, dim=2, rational=False), 3)
+    assert not objective.paired(Layout(n_pad=8, dim=2, rational=True), 3)  # 18 coefficients
     pts = random_bspline_points(10, 3, False, seed=3)[0]
     # free ends: the padding repeats the last point, which then counts if misread
     kw = dict(cps=range(5, 8), degrees=(2, 3), iterations=3, refine=False, fix_ends=False)
     try:
         jax.clear_caches()  # the monkeypatched choice is read when the program traces
         apart = fit(pts, rational=rational, search_every=search_every, **kw).history
-        monkeypatch.setattr(F, "_search_apart", lambda space: False)
-        monkeypatch.setattr(F, "_paired", lambda space, k: False)
+        monkeypatch.setattr(search, "search_apart", lambda space: False)
+        monkeypatch.setattr(search, "paired", lambda space, k: False)
         jax.clear_caches()
         fused = fit(pts, rational=rational, search_every=search_every, **kw).history
     finally:
@@ -304,20 +305,23 @@ def test_search_apart_agrees_with_the_fused_search(monkeypatch, rational, search
 
 
 def test_host_work_on_threads_equals_the_plain_loop():
-    """The seeds (and projections) run on a thread per CPU (``fit._host_map``): in order,
+    """The seeds (and projections) run on a thread per CPU (``devices.host_map``): in order,
     each swarm's seed exactly its own least-squares fit, and an error comes out as raised."""
-    from swarmcurves_jax.fit import _host_map, _seeds, _Space, least_squares_ctrl, normalise
+    from swarmcurves_jax.devices import host_map
+    from swarmcurves_jax.layout import Layout
+    from swarmcurves_jax.prepare import normalise
+    from swarmcurves_jax.seeds import least_squares_ctrl, seed_positions
 
     pts = normalise(random_bspline_points(8, 3, False, seed=2)[0])[0]
     pairs = [(k, n) for k in (1, 2, 3) for n in range(4, 9)]
-    space = _Space(n_pad=8, dim=2, rational=False, num_knots=0)
+    space = Layout(n_pad=8, dim=2, rational=False, num_knots=0)
     ends = (pts[0], pts[-1])
-    seeds = _seeds(pairs, space, pts, False, ends, np.float64)
+    seeds = seed_positions(pairs, space, pts, False, ends, np.float64)
     for (k, n), seed in zip(pairs, seeds, strict=True):
         expected = least_squares_ctrl(pts, n, k, False, ends).ravel()
         np.testing.assert_array_equal(seed[: 2 * n], expected)
         assert not seed[2 * n :].any()
-    assert _host_map(lambda x: x * x, range(50)) == [x * x for x in range(50)]
+    assert host_map(lambda x: x * x, range(50)) == [x * x for x in range(50)]
 
     def fails(x):
         if x == 7:
@@ -325,4 +329,4 @@ def test_host_work_on_threads_equals_the_plain_loop():
         return x
 
     with pytest.raises(ValueError, match="swarm 7"):
-        _host_map(fails, range(20))
+        host_map(fails, range(20))

@@ -10,13 +10,10 @@ from hypothesis import strategies as st
 
 from swarmcurves_jax import design_matrix, make_knots, normalise
 from swarmcurves_jax.datasets import random_bspline_points, random_nurbs_points
-from swarmcurves_jax.fit import default_num_samples
+from swarmcurves_jax.prepare import default_num_samples
 from swarmcurves_jax.fitness import (
-    SpanBasis,
-    _span_and_start,
+    span_and_start,
     foot_samples,
-    free_knot_basis,
-    make_span_basis,
     nearest_sample,
     point_distances,
     polyline_distances,
@@ -24,6 +21,7 @@ from swarmcurves_jax.fitness import (
     search_starts,
     starts_on_segment,
 )
+from swarmcurves_jax.span_basis import SpanBasis, free_knot_basis, make_span_basis
 from swarmcurves_jax.knots import breakpoints
 from swarmcurves_jax.projection import project_points
 
@@ -211,13 +209,13 @@ def test_every_matrix_product_asks_for_float32():
         (13, 3, False, 30),
     ],
 )
-def test_span_and_start_recover_every_sample_index(n, k, closed, num):
+def testspan_and_start_recover_every_sample_index(n, k, closed, num):
     """Exact under jit too, where the span is a float floor (XLA may rewrite its division):
     a sample's centre ``m + 1/2`` gives its span and parameter, its segment's ends ``m``
     and ``m + 1`` the same point of the curve (in the next span where one begins there)."""
     basis = as_jax(make_span_basis(n, k, closed, num))
     per, spans = int(basis.per_span), int(basis.num_spans)
-    at = jax.jit(_span_and_start, static_argnums=(2, 3))
+    at = jax.jit(span_and_start, static_argnums=(2, 3))
     m = np.arange(num)
     span, tau = at(jnp.asarray(m + 0.5, jnp.float32), basis, jnp.float32, True)
     want = np.minimum(m // per, spans - 1)
@@ -280,7 +278,7 @@ def test_fitness_never_undercuts_and_is_near_exact(closed, n, k, rational):
 def test_the_search_barrier_changes_no_value(closed, n, k, rational):
     """``barrier=False`` (fit's Newton steps reading a stored search result) drops only an
     exact identity on the sample index: the same distances, bit for bit."""
-    from swarmcurves_jax.fit import CPU_COMPILER_OPTIONS
+    from swarmcurves_jax.objective import CPU_COMPILER_OPTIONS
 
     xn, cn, w, _ = _random_curve(n, k, closed, 3, rational)
     basis = as_jax(make_span_basis(n, k, closed, default_num_samples([(k, n)], closed)))
@@ -359,7 +357,7 @@ def test_fitness_on_smooth_data_is_near_exact():
     true mean distance to 1e-3 (relative), and 98 % of the points to float32 precision
     (the rest: far points of poor curves where three Newton steps fall short)."""
     from swarmcurves_jax.datasets import analytic_points
-    from swarmcurves_jax.fit import least_squares_ctrl
+    from swarmcurves_jax.seeds import least_squares_ctrl
 
     pts, _, _ = normalise(analytic_points("f4"))
     for k in (1, 2, 3):

@@ -9,8 +9,9 @@ from hypothesis import strategies as st
 
 from swarmcurves_jax import Curve, design_matrix, fit
 from swarmcurves_jax.datasets import analytic_points
-from swarmcurves_jax.fitness import foot_samples, free_knot_basis, point_distances
-from swarmcurves_jax.fit import normalise
+from swarmcurves_jax.fitness import foot_samples, point_distances
+from swarmcurves_jax.prepare import normalise
+from swarmcurves_jax.span_basis import free_knot_basis
 from swarmcurves_jax.projection import project_points
 from swarmcurves_jax.knots import (
     MIN_SPAN_FRACTION,

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from swarmcurves_jax import Curve
-from swarmcurves_jax.fitness import data_segments
-from swarmcurves_jax.fitness import excursion, make_span_basis, curve_samples
+from swarmcurves_jax.excursions import data_segments, excursion
+from swarmcurves_jax.span_basis import curve_samples, make_span_basis
 from swarmcurves_jax.knots import make_knots
 from swarmcurves_jax.measures import (
     curve_polyline,

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from swarmcurves_jax.fit import least_squares_ctrl
+from swarmcurves_jax.seeds import least_squares_ctrl
 from swarmcurves_jax.fitness import point_distances
 
 

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 
 from swarmcurves_jax import PSOParams, fit
 from swarmcurves_jax.datasets import random_bspline_points
-from swarmcurves_jax.fit import _swarm_program, normalise
+from swarmcurves_jax.prepare import normalise
+from swarmcurves_jax.search import swarm_program
 
 GOOD = random_bspline_points(5, 3, False, num_points=40, seed=21)[0]
 P = PSOParams(0.7298, 1.49618, 1.49618, 0.1)
@@ -236,10 +237,10 @@ def test_invariants_translation_scaling_seed_and_no_recompile(pts, rel_shift, fa
     kwargs = dict(cps=[4, 6], degrees=(2, 3), iterations=25, chunk_size=25, particles=16)
     base = fit(pts, **kwargs)
     _sane(base)
-    before = _swarm_program._cache_size()
+    before = swarm_program._cache_size()
     moved = fit(moved_pts, **kwargs)
     again = fit(pts, **kwargs)
-    assert _swarm_program._cache_size() == before  # equal shapes: nothing recompiled
+    assert swarm_program._cache_size() == before  # equal shapes: nothing recompiled
     for a, b, c in zip(base, moved, again):
         np.testing.assert_array_equal(a.control_points, c.control_points)  # same seed
         scale = np.ptp(pts * factor, axis=0).max()

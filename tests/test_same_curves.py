@@ -38,19 +38,37 @@ def calls():
         "closed": lambda: [fit(closed_pts, cps=[6, 8], degrees=3, closed=True, seed=3, **SHORT)],
         "helix_3d": lambda: [fit(_helix(), cps=[8], degrees=[2, 3], seed=5, **SHORT)],
         "rational": lambda: [
-            fit(random_nurbs_points(6, 2, num_points=100, seed=42)[0], cps=[6], degrees=2,
-                rational=True, seed=7, **SHORT)
+            fit(
+                random_nurbs_points(6, 2, num_points=100, seed=42)[0],
+                cps=[6],
+                degrees=2,
+                rational=True,
+                seed=7,
+                **SHORT,
+            )
         ],
         "free_knots": lambda: [
             fit(analytic_points("f1", 100), cps=[7], degrees=3, free_knots=True, seed=9, **SHORT)
         ],
         "search_every_tol": lambda: [
-            fit(analytic_points("f3", 100), cps=[6, 9], degrees=2, search_every=4, tol=1e-4,
-                refine=False, seed=11, **SHORT)
+            fit(
+                analytic_points("f3", 100),
+                cps=[6, 9],
+                degrees=2,
+                search_every=4,
+                tol=1e-4,
+                refine=False,
+                seed=11,
+                **SHORT,
+            )
         ],
         "fit_many": lambda: fit_many(
             [analytic_points("f2", 80), closed_pts, analytic_points("f5", 110)],
-            cps=[5, 6], degrees=[2, 3], closed=[False, True, False], seed=[1, 2, 3], **SHORT
+            cps=[5, 6],
+            degrees=[2, 3],
+            closed=[False, True, False],
+            seed=[1, 2, 3],
+            **SHORT,
         ),
     }
 
@@ -64,8 +82,9 @@ def arrays(results) -> dict[str, np.ndarray]:
             out[f"{key}/control_points"] = c.control_points
             out[f"{key}/weights"] = c.weights
             out[f"{key}/knots"] = c.knots
-            out[f"{key}/errors"] = np.array([c.error, c.max_error, c.mean_deviation,
-                                             c.max_deviation])
+            out[f"{key}/errors"] = np.array(
+                [c.error, c.max_error, c.mean_deviation, c.max_deviation]
+            )
     return out
 
 
