@@ -71,15 +71,14 @@ class FitResult:
     wall_time : float
         Seconds spent in ``fit`` (compilation included).
     timings : dict
-        Seconds per stage: ``"swarm"`` (setup, compilation and the swarm), ``"setup"``
-        (its first part, on the host: the checked points, least-squares seeds, boxes and
-        bases) and, when the
-        solutions were refined, ``"refine"`` (its compilation included); the rest of
-        ``wall_time`` is the host's true-error projections.  In a batch
-        (:func:`swarmcurves_jax.fit_many`) the swarm and the refinement are queued
-        together, so there is one ``"call"`` (besides ``"setup"``): the seconds from
-        launching the program call that ran the curve (with ``batch["curves"]`` others) to
-        its results.
+        Seconds per stage: ``"setup"`` (on the host: the checked points, least-squares
+        seeds, boxes and bases) and ``"call"`` (from the start until the device's results
+        are back: the swarm and the polish, queued together so that the polish compiles
+        while the swarm runs); the rest of ``wall_time`` is the host's true-error
+        projections.  With ``stage_timings=True`` the swarm is
+        waited for before the polish is queued: ``"swarm"`` (from the start, compilation
+        included) and, when refined, ``"refine"`` (its compilation included) instead of
+        ``"call"``.
     batch : dict
         For :func:`swarmcurves_jax.fit_many`: ``"call"`` (which program call ran the
         curve), ``"curves"`` (how many real curves it ran), ``"bucket"`` (its padded

@@ -1,11 +1,22 @@
 import os
+import tempfile
 
-import jax
-import numpy as np
-import pytest
-from hypothesis import settings
+# One compilation cache for the whole run: the workers, the command line's subprocesses
+# and the notebooks' kernels (which inherit the variable) compile many of the same
+# programs; a program read back from the cache is the same executable, so results do not
+# change.  Keyed by the run, so a run never reads an older run's programs.
+_RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID", str(os.getpid()))
+os.environ.setdefault(
+    "JAX_COMPILATION_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"swarmcurves-tests-{_RUN}")
+)
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
+jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
 
 settings.register_profile("ci", max_examples=40, deadline=None, derandomize=True)
 settings.register_profile("dev", max_examples=20, deadline=None)
