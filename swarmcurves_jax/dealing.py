@@ -61,7 +61,7 @@ def split_swarms(groups, parts: int, cost: np.ndarray) -> list[np.ndarray]:
 
 
 def part_groups(groups, chosen: np.ndarray):
-    """:func:`degree_groups` of the swarms ``chosen``, each group keeping the whole
+    """:func:`~swarmcurves_jax.prepare.degree_groups` of the swarms ``chosen``, each group keeping the whole
     call's search samples (so a swarm's result does not depend on the split), and per
     group its index in ``groups`` and the positions of its chosen swarms there."""
     out, within = [], []

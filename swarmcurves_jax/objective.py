@@ -113,7 +113,7 @@ def by_degree(fn, groups, bases, *args):
     """``fn(*args_of_one_swarm, basis, k=degree)`` vmapped over the swarms of each degree
     group, concatenated: a group's basis has its own shapes (spans, samples) and its
     degree is static, so its fitness is specialised (a polygon's is a fraction of a
-    cubic's).  ``groups``: :func:`degree_groups`; ``bases`` one per group.
+    cubic's).  ``groups``: :func:`~swarmcurves_jax.prepare.degree_groups`; ``bases`` one per group.
     """
     parts = [
         jax.vmap(functools.partial(fn, k=k))(

@@ -99,7 +99,7 @@ def swarm_program(
             """The group's fitness (P,) and feet.  A polygon's search is its exact distance,
             run inside each evaluation (no Newton steps).  Otherwise the search runs in a
             branch of its own (every ``search_every`` iterations, or every iteration where
-            :func:`search_apart`), so that its result is stored once, not recomputed by
+            :func:`~swarmcurves_jax.objective.search_apart`), so that its result is stored once, not recomputed by
             each reader (XLA:CPU fuses cheap producers into each); else it is fused."""
 
             def mean(q, foot, parts=1):  # a bucket length is a multiple of 16: 2 parts fit
