@@ -1,6 +1,5 @@
 """fit(): recovery of known curves, determinism, the result objects, bad input."""
 
-import importlib
 import json
 import math
 
