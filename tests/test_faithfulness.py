@@ -3,7 +3,7 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from swarmcurves_jax import fit, normalise
@@ -21,6 +21,7 @@ def largest_allowance(points: np.ndarray, closed: bool) -> float:
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=list(HealthCheck))
+@example(n=5, closed=True, dim=2, sigma=0.0, seed=46)  # 4 cp: the excursion 2.004 max_error + A
 @given(
     n=st.integers(5, 8),
     closed=st.booleans(),
@@ -31,11 +32,15 @@ def largest_allowance(points: np.ndarray, closed: bool) -> float:
 def test_every_solution_stays_within_its_error_plus_the_polylines_allowance(
     n, closed, dim, sigma, seed
 ):
-    """The bound: every point of every solution lies within ``2 max_error + A`` of the
+    """The bound: every point of every solution lies within ``3 max_error + A`` of the
     data polyline, ``A`` its largest allowance.  A curve through every point within
     ``max_error`` that runs along the data in order lies within ``max_error`` of the
-    curve the data sample, which lies within ``A`` of the polyline; twice the error leaves
-    room for a curve that crosses between two points.  A loop or a spike breaks it."""
+    curve the data sample, which lies within ``A`` of the polyline; the rest leaves room
+    for a curve that crosses between two points, and for one with fewer control points
+    than the data's curve, which cuts across its turns (closed, 5 control points fitted
+    with 4: 2.004 max_error + A, the example pinned above).  A loop or a spike exceeds it
+    by orders of magnitude (the polish's spikes: 0.28 and 6.8 half-extents at errors
+    below 1e-3)."""
     pts, _ = random_bspline_points(n, 3, closed, num_points=120, dim=dim, seed=seed)
     norm, center, scale = normalise(pts)
     if sigma and dim == 2:
@@ -45,7 +50,7 @@ def test_every_solution_stays_within_its_error_plus_the_polylines_allowance(
     result = fit(norm, cps=[n - 1, n, n + 1], closed=closed, iterations=300, seed=seed)
     bound_extra = largest_allowance(result.normalised(result.points), closed)
     for c in result:
-        bound = 2 * c.max_error + bound_extra
+        bound = 3 * c.max_error + bound_extra
         assert c.info["max_excursion"] <= bound, (c, bound)
         assert c.max_deviation == pytest.approx(max(c.max_error, c.info["max_excursion"]))
 
