@@ -115,8 +115,11 @@ def launch(
     num = len(preps)
     size = num + (-num % place.multiple) if size is None else size
     _check_memory(preps[0], opts, min(place.batch, size) * place.multiple)
-    draws = _start_draws(preps, opts, size)  # compiles and runs while the host builds seeds
-    batch = _host_batch(preps, opts, size)
+    padded = preps + [preps[0]] * (size - num)  # the padding repeats the first curve
+    keys = np.stack([p.key_data for p in padded])
+    pair_ids = np.array(preps[0].pairs, np.int32)
+    draws = _start_draws(keys, pair_ids, preps[0].space, opts)  # runs while seeds are built
+    batch = _host_batch(padded, num, keys, pair_ids, opts)
     timings = {"setup": time.perf_counter() - start}  # the host's seeds, boxes and bases
     report = _reporter(batch, opts, callback, bar)
     stop_reason, interrupted = "iterations", False
@@ -144,31 +147,28 @@ def launch(
     return Launched(preps, opts, place, progress, polished, stop_reason, start, timings)
 
 
-def _start_draws(preps, opts: FitOptions, size: int) -> Future:
+def _start_draws(keys, pair_ids, space: Layout, opts: FitOptions) -> Future:
     """Every swarm's run key and initial draws (:func:`~swarmcurves_jax.search.initial_draws`),
     compiled and run in a thread while the host builds the seeds and the swarm program
     traces (XLA compiles outside Python's lock).  The draws stay on the device."""
-    first = preps[0]
-    keys = np.stack([p.key_data for p in preps + [first] * (size - len(preps))])
-    pair_ids = np.array(first.pairs, np.int32)
     pool = ThreadPoolExecutor(1)
     draws = pool.submit(
         initial_draws,
         keys,
         pair_ids,
         num_particles=opts.particles,
-        size=first.space.size,
+        size=space.size,
         dtype=opts.dtype,
     )
     pool.shutdown(wait=False)
     return draws
 
 
-def _host_batch(preps, opts: FitOptions, size: int) -> Batch:
-    """The call's host arrays: the padding repeats the first curve, its seeds built once."""
-    first = preps[0]
+def _host_batch(padded, num: int, keys, pair_ids, opts: FitOptions) -> Batch:
+    """The call's host arrays, ``padded`` with repeats of its first curve (their seeds built
+    once) after the ``num`` real ones."""
+    first = padded[0]
     space, pairs, groups = first.space, first.pairs, first.groups
-    padded = preps + [first] * (size - len(preps))
     built = {}
     for p in padded:
         if id(p) not in built:
@@ -179,13 +179,13 @@ def _host_batch(preps, opts: FitOptions, size: int) -> Batch:
     boxes = pso.Box(*(np.stack(parts) for parts in zip(*(built[id(p)][0] for p in padded))))
     stack = lambda field: np.stack([getattr(p, field) for p in padded])  # noqa: E731
     return Batch(
-        num=len(preps),
+        num=num,
         space=space,
         pairs=pairs,
         groups=groups,
-        keys=stack("key_data"),
-        pair_ids=np.array(pairs, np.int32),
-        state=empty_state(size, len(pairs), opts.particles, space.size, opts.dtype),
+        keys=keys,
+        pair_ids=pair_ids,
+        state=empty_state(len(padded), len(pairs), opts.particles, space.size, opts.dtype),
         inputs=Inputs(
             boxes, np.stack([built[id(p)][1] for p in padded]), stack("data"), stack("mask")
         ),
@@ -219,10 +219,10 @@ def chunks(batch: Batch, drawn, place: Placement, opts: FitOptions, stop) -> Ite
     (not waited for), until the iterations are done or ``stop`` is set.  ``drawn()``: the
     batch's initial draws, waited for only once the program has traced."""
     dtype, lead = opts.dtype, batch.inputs.seeds.shape[:2]
-    feet = np.zeros((*lead, opts.particles, batch.inputs.data.shape[1]), dtype)
-    state, feet, inputs = place.curves(
-        (batch.state, feet if opts.search_every > 1 else (), batch.inputs)
-    )
+    feet = ()  # the last search's starts, carried only when a search is reused
+    if opts.search_every > 1:
+        feet = np.zeros((*lead, opts.particles, batch.inputs.data.shape[1]), dtype)
+    state, feet, inputs = place.curves((batch.state, feet, batch.inputs))
     tol = np.asarray(-1.0 if opts.tol is None else opts.tol, dtype)
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
     max_steps = np.asarray(opts.iterations, np.int32)
@@ -323,9 +323,10 @@ def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, rep
 
     def run_part(i):
         chosen = parts[i]
-        drawn = lambda: jax.tree_util.tree_map(
-            lambda a: a[:, chosen], jax.device_get(draws.result())
-        )  # noqa: E731
+
+        def drawn():  # this part's swarms of the draws (host memory: a CPU device's own)
+            return jax.tree_util.tree_map(lambda a: a[:, chosen], jax.device_get(draws.result()))
+
         say = None if report is None else (lambda at, best: events.put((i, at, best)))
         device = Placement(device=devices[i])
         try:

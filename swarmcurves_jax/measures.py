@@ -105,11 +105,7 @@ def sample_excursions(samples, polyline) -> tuple[float, float, float]:
     curve ``samples`` (M, D), in order, to the polyline with vertices ``polyline`` (a
     single vertex: the distance to that point)."""
     samples = np.asarray(samples, dtype=np.float64)
-    polyline = np.asarray(polyline, dtype=np.float64)
-    if len(polyline) < 2:
-        d = np.linalg.norm(samples - polyline[:1], axis=1)
-    else:
-        d = distance_to_polyline(samples, polyline)
+    d = distance_to_polyline(samples, np.asarray(polyline, dtype=np.float64))
     arc = np.linalg.norm(np.diff(samples, axis=0), axis=1)
     total = float(np.sum(arc))
     if total > 0:

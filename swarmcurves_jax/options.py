@@ -132,9 +132,6 @@ class FitOptions:
             return "lm"
         return None if self.refine is False else self.refine
 
-    def replace(self, **changes) -> FitOptions:
-        return dataclasses.replace(self, **changes)
-
 
 def _checked(opts: FitOptions) -> dict:
     """Every option but the counts checked (exact errors that name it), some normalised."""
