@@ -13,6 +13,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from .fitness import min_excess2
 from .span_basis import SpanBasis
 
 __all__ = ["ALLOWANCE_BASE", "Polyline", "data_segments", "sample_excursions", "excursion"]
@@ -20,14 +21,14 @@ __all__ = ["ALLOWANCE_BASE", "Polyline", "data_segments", "sample_excursions", "
 
 class Polyline(NamedTuple):
     """The polyline through the ordered data as the fitness sees it, one row per segment
-    (``B``: the padded point count): ``start`` (B, D), ``vec`` (B, D) to its end,
-    ``slope`` (B, D) ``vec / |vec|**2`` and ``allowance2`` (B,), the square of how far a
-    curve may stray from it unpenalised (``-inf`` on rows that are no segment, so that
-    none of them is ever the nearest)."""
+    (``B``: the padded point count): ``centre`` (B, D), ``half`` (B, D) from the centre to
+    its end (the segment is ``centre + s * half``, ``|s| <= 1``, as the fitness's tangent
+    segments are) and ``allowance2`` (B,), the square of how far a curve may stray from it
+    unpenalised (``-inf`` on rows that are no segment, so that none of them is ever the
+    nearest)."""
 
-    start: jax.Array
-    vec: jax.Array
-    slope: jax.Array
+    centre: jax.Array
+    half: jax.Array
     allowance2: jax.Array
 
 
@@ -73,24 +74,27 @@ def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
     rough = jnp.maximum(scatter, scatter[after])
     allowance = jnp.sqrt(len2) * (ALLOWANCE_BASE + 0.5 * jnp.tan(0.25 * bend)) + rough
     allowance2 = jnp.where(idx < segments, allowance * allowance, -jnp.inf)
-    return Polyline(points, vec, vec / jnp.maximum(len2, 1e-30)[:, None], allowance2)
+    return Polyline(points + 0.5 * vec, 0.5 * vec, allowance2)
 
 
 def sample_excursions(
-    samples: jax.Array, tangents: jax.Array, basis: SpanBasis, polyline: Polyline
+    samples: jax.Array,
+    tangents: jax.Array,
+    basis: SpanBasis,
+    polyline: Polyline,
+    dense: bool = False,
 ) -> tuple[jax.Array, jax.Array]:
     """How far each curve sample strays beyond the data polyline's allowance, (M,), and
     the arc length it stands for, (M,) (0 on samples that repeat the last).
 
     The excess is ``sqrt(min over segments of max(0, d**2 - a**2))`` (``d``: the
     distance to a segment, ``a``: its allowance): zero inside the allowance, about ``d``
-    far from it, and one square root per sample rather than per pair.
+    far from it, and one square root per sample rather than per pair.  ``dense``: the
+    form that compiles quickly, for a caller that evaluates it a few times
+    (:func:`~swarmcurves_jax.fitness.min_excess2`).
     """
-    ap = samples[:, None, :] - polyline.start[None]
-    along = jnp.clip(jnp.sum(ap * polyline.slope[None], axis=2), 0.0, 1.0)
-    off = ap - along[..., None] * polyline.vec[None]
-    over = jnp.sum(off * off, axis=2) - polyline.allowance2[None]
-    excess = jnp.sqrt(jnp.maximum(jnp.min(over, axis=1), 0.0) + 1e-30)
+    over = min_excess2(samples, *polyline, dense=dense)
+    excess = jnp.sqrt(jnp.maximum(over, 0.0) + 1e-30)
     real = jnp.arange(samples.shape[0]) < basis.per_span * basis.num_spans
     return excess, jnp.sqrt(jnp.sum(tangents * tangents, axis=1)) * real
 

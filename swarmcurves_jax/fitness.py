@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+
 from .span_basis import PRECISION, SpanBasis, homogeneous, curve_samples
 
 __all__ = [
@@ -43,6 +44,15 @@ __all__ = [
 NEWTON_STEPS = 3
 
 
+#: Segment coordinates per unrolled block of :func:`min_excess2` (16 segments in 2D):
+#: its loop runs over the data's segments, hundreds, where the search's runs over tens of
+#: curve samples, and unrolling them all costs compile time more than it saves.
+#: Measured on W1 (``benchmarks/bench_w1.py``, 2-core AVX-512 EPYC), cold / warm: 192
+#: coordinates 9.8 / 2.73 s, 64: 8.2 / 2.70 s, 32: 7.1-7.3 / 2.70-2.76 s, 16: 7.0 /
+#: 2.79 s, 8: 6.9 / 2.95 s; the broadcast (M, B) ``min`` it replaced: 8.4 / 4.62 s.
+_EXCESS_COORDS = 32
+
+
 #: Sample coordinates per unrolled block of the search (96 samples in 2D, 64 in 3D).
 #: Past about 110 2D or 80 3D samples in one unrolled loop, XLA:CPU's code for the fused
 #: loop runs 5-10x slower (measured: a 35-cp cubic's fitness, 128 samples, 5.5-6.1 ms
@@ -50,11 +60,12 @@ NEWTON_STEPS = 3
 _BLOCK_COORDS = 192
 
 
-def search_blocks(num: int, dim: int) -> tuple[int, int]:
+def search_blocks(num: int, dim: int, per_block: int = _BLOCK_COORDS) -> tuple[int, int]:
     """(blocks, samples per block) of :func:`nearest_sample` for ``num`` samples in
-    ``dim`` dimensions: as few blocks as :data:`_BLOCK_COORDS` allows, of equal size so
-    that padding stays under one sample per block."""
-    blocks = -(-num // max(1, _BLOCK_COORDS // dim))
+    ``dim`` dimensions: as few blocks as ``per_block`` coordinates each allows
+    (:data:`_BLOCK_COORDS`; :func:`min_excess2`'s segments: :data:`_EXCESS_COORDS`), of
+    equal size so that padding stays under one sample per block."""
+    blocks = -(-num // max(1, per_block // dim))
     return blocks, -(-num // blocks)
 
 
@@ -135,17 +146,43 @@ def polyline_distances(points: jax.Array, samples: jax.Array, tangents: jax.Arra
     return jnp.sqrt(_min_over_segments(points, samples, tangents, 0) + 1e-30)
 
 
-def _min_over_segments(points, samples, tangents, bits: int):
-    """The smallest squared point-to-segment distance (N,) over the segments; with
-    ``bits`` > 0, int32 whose low ``bits`` hold the nearest segment's index, and the
-    distance's bits above them; or, where :func:`starts_on_segment` (``bits`` > 0), that
+def min_excess2(
+    points: jax.Array,
+    centres: jax.Array,
+    halves: jax.Array,
+    allowance2: jax.Array,
+    dense: bool = False,
+) -> jax.Array:
+    """The smallest ``d**2 - allowance2[m]`` (N,) over the segments
+    ``centres[m] + s * halves[m]``, ``|s| <= 1`` (``d``: a point's distance to one): how
+    far each curve sample strays beyond the data polyline's allowance
+    (:func:`~swarmcurves_jax.excursions.sample_excursions`).
+
+    By the search's fused running minimum over blocks of segments, for the swarm, which
+    evaluates it every iteration; with ``dense``, as one broadcast (N, M) ``min``, which
+    XLA:CPU materialises (1.7x slower on W1) but compiles in a fraction of the time, for
+    the polish, which evaluates it a few dozen times (measured on ``fit``'s first call on
+    f4: the polish compiled and ran in 6.4 s fused, 3.2 s dense)."""
+    if dense:
+        diff = points[:, None, :] - centres[None]
+        s = jnp.clip(jnp.sum(diff * _slopes(halves)[None], axis=2), -1.0, 1.0)
+        off = diff - s[..., None] * halves[None]
+        return jnp.min(jnp.sum(off * off, axis=2) - allowance2[None], axis=1)
+    return _min_over_segments(points, centres, halves, 0, allowance2, _EXCESS_COORDS)
+
+
+def _min_over_segments(points, samples, tangents, bits: int, offsets=None, per_block=None):
+    """The smallest squared point-to-segment distance (N,) over the segments, less each
+    segment's ``offsets`` where given, in blocks of ``per_block`` coordinates
+    (:func:`search_blocks`); with ``bits`` > 0, int32 whose low ``bits`` hold the nearest
+    segment's index, and the distance's bits above them; or, where :func:`starts_on_segment` (``bits`` > 0), that
     index and the point's foot ``s`` on the segment, (N,) each, carried by selects beside
     the distance (:func:`nearest_sample`).
 
     The minimum of the tagged bits is taken as integers: non-negative floats order as
     their bits do, and no denormal is flushed (a float 0 tagged would be one)."""
     num, dim = samples.shape
-    num_blocks, size = search_blocks(num, dim)
+    num_blocks, size = search_blocks(num, dim, per_block or _BLOCK_COORDS)
     keep = jnp.int32(~((1 << bits) - 1))  # the distance's bits above the tag
     carry = bits > 0 and starts_on_segment(num, dim)
     coords = [points[:, i] for i in range(dim)]
@@ -156,10 +193,11 @@ def _min_over_segments(points, samples, tangents, bits: int):
         # about 0.2 ms per operation, and the indexing was two thirds of the search's
         # operations.  (Offsets made for the whole block at once, (size, N), were
         # materialised: 3x slower.)
-        first, block, tangent, slope = blk
+        first, block, tangent, slope, offset = blk
         shape = (block.shape[0], points.shape[0])
         rows = lambda a: jnp.unstack(jnp.broadcast_to(a[:, None], shape))  # noqa: E731
         sample = [rows(block[:, i]) for i in range(dim)]
+        offset = rows(offset) if subtract else None
         tangent, slope = (
             [rows(tangent[:, i]) for i in range(dim)],
             [rows(slope[:, i]) for i in range(dim)],
@@ -172,6 +210,8 @@ def _min_over_segments(points, samples, tangents, bits: int):
         for m in range(shape[0]):
             diff = [p - c[m] for p, c in zip(coords, sample)]
             d2, s = _segment_d2(diff, [e[m] for e in slope], [e[m] for e in tangent])
+            if offset is not None:
+                d2 = d2 - offset[m]
             if carry:  # (distance, index, foot), the first of equal distances kept
                 if acc is None:
                     acc = d2, jnp.zeros(d2.shape, jnp.int32), s
@@ -190,16 +230,12 @@ def _min_over_segments(points, samples, tangents, bits: int):
         return acc
 
     slopes = _slopes(tangents)
+    subtract = offsets is not None
+    offsets = offsets if subtract else jnp.zeros(num, samples.dtype)
     if num_blocks == 1:
-        best = block_min(None, (jnp.int32(0), samples, tangents, slopes))
+        best = block_min(None, (jnp.int32(0), samples, tangents, slopes, offsets))
         return best[1:] if carry else best
-    pad = num_blocks * size - num
-    blocks = [
-        jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]).reshape(
-            num_blocks, size, *a.shape[1:]
-        )
-        for a in (samples, tangents, slopes)
-    ]
+    blocks = [_in_blocks(a, num_blocks, size) for a in (samples, tangents, slopes, offsets)]
     firsts = jnp.arange(num_blocks, dtype=jnp.int32) * size
     if bits:
         init = jnp.full(points.shape[:1], jnp.iinfo(jnp.int32).max, jnp.int32)
@@ -207,6 +243,15 @@ def _min_over_segments(points, samples, tangents, bits: int):
         init = jnp.full(points.shape[:1], jnp.inf, points.dtype)
     best, _ = jax.lax.scan(lambda a, b: (block_min(a, b), None), init, (firsts, *blocks))
     return best
+
+
+def _in_blocks(a: jax.Array, num_blocks: int, size: int) -> jax.Array:
+    """``a``'s rows as (num_blocks, size, ...), the last row repeated to fill: a repeated
+    segment changes no minimum."""
+    pad = num_blocks * size - a.shape[0]
+    return jnp.concatenate([a, jnp.repeat(a[-1:], pad, axis=0)]).reshape(
+        num_blocks, size, *a.shape[1:]
+    )
 
 
 def _segment_d2(diff: list, slope: list, tangent: list) -> tuple[jax.Array, jax.Array]:

@@ -73,12 +73,13 @@ def foot_starts(q, basis, points, space, pair, k, dense=True):
 
 def excursion_term(q, basis, polyline: Polyline, space, pair, k, per_sample=False):
     """How far the curve of position ``q`` strays from the data polyline: the arc-length
-    mean excess (:func:`~swarmcurves_jax.excursions.excursion`), or with ``per_sample`` each
-    sample's excess and arc length."""
+    mean excess (:func:`~swarmcurves_jax.excursions.excursion`), the swarm's; or with
+    ``per_sample`` each sample's excess and arc length, the polish's residuals, in the
+    form that compiles quickly (``dense``: the polish evaluates them a few dozen times)."""
     basis = space.basis(q, pair, k, basis)
     samples, tangents = curve_samples(*geometry(q, space), basis)
     if per_sample:
-        return sample_excursions(samples, tangents, basis, polyline)
+        return sample_excursions(samples, tangents, basis, polyline, dense=True)
     return excursion(samples, tangents, basis, polyline)
 
 

@@ -12,6 +12,7 @@ from swarmcurves_jax import design_matrix, make_knots, normalise
 from swarmcurves_jax.datasets import random_bspline_points, random_nurbs_points
 from swarmcurves_jax.prepare import default_num_samples
 from swarmcurves_jax.fitness import (
+    min_excess2,
     span_and_start,
     foot_samples,
     nearest_sample,
@@ -94,6 +95,26 @@ def test_polyline_distances_are_exact(seed, num, dim):
     mid, half = mid.astype(np.float64), half.astype(np.float64)  # the segments it sees
     exact = _segment_distances(pts, mid - half, mid + half).min(1)
     np.testing.assert_allclose(got, exact, rtol=2e-6, atol=5e-7)  # float32 offsets
+
+
+@given(st.integers(0, 1000), st.sampled_from([1, 16, 17, 200]), st.sampled_from([2, 3]))
+def test_min_excess2_is_the_smallest_distance_beyond_each_allowance(seed, num, dim):
+    # the excursion's minimum over data segments, fused in blocks of 16 (2D) or 10 (3D)
+    # segments and as one broadcast: the same exact float64 value, with empty segments and
+    # rows that are no segment (allowance -inf: never the nearest)
+    rng = np.random.default_rng(seed)
+    verts = rng.uniform(-1, 1, (num + 1, dim))
+    verts[rng.uniform(size=num + 1) < 0.1] = verts[0]
+    mid, half = (verts[:-1] + verts[1:]) / 2, (verts[1:] - verts[:-1]) / 2
+    allow2 = rng.uniform(0, 0.2, num) ** 2
+    allow2[1::5] = -np.inf
+    pts = rng.uniform(-1.5, 1.5, (50, dim))
+    d = _segment_distances(pts, mid - half, mid + half) ** 2 - allow2[None]
+    exact = d.min(1)
+    args = [jnp.asarray(x, jnp.float32) for x in (pts, mid, half, allow2)]
+    for dense in (False, True):
+        got = np.asarray(min_excess2(*args, dense=dense))
+        np.testing.assert_allclose(got, exact, rtol=1e-5, atol=2e-6, err_msg=f"dense={dense}")
 
 
 def test_polyline_distances_keep_float64():
