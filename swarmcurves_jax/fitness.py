@@ -175,9 +175,9 @@ def _min_over_segments(points, samples, tangents, bits: int, offsets=None, per_b
     """The smallest squared point-to-segment distance (N,) over the segments, less each
     segment's ``offsets`` where given, in blocks of ``per_block`` coordinates
     (:func:`search_blocks`); with ``bits`` > 0, int32 whose low ``bits`` hold the nearest
-    segment's index, and the distance's bits above them; or, where :func:`starts_on_segment` (``bits`` > 0), that
-    index and the point's foot ``s`` on the segment, (N,) each, carried by selects beside
-    the distance (:func:`nearest_sample`).
+    segment's index, and the distance's bits above them; or, where
+    :func:`starts_on_segment` (``bits`` > 0), that index and the point's foot ``s`` on the
+    segment, (N,) each, carried by selects beside the distance (:func:`nearest_sample`).
 
     The minimum of the tagged bits is taken as integers: non-negative floats order as
     their bits do, and no denormal is flushed (a float 0 tagged would be one)."""
