@@ -193,11 +193,11 @@ def _min_over_segments(points, samples, tangents, bits: int, offsets=None, per_b
         # about 0.2 ms per operation, and the indexing was two thirds of the search's
         # operations.  (Offsets made for the whole block at once, (size, N), were
         # materialised: 3x slower.)
-        first, block, tangent, slope, offset = blk
+        first, block, tangent, slope, *offset = blk  # the offsets only where given
         shape = (block.shape[0], points.shape[0])
         rows = lambda a: jnp.unstack(jnp.broadcast_to(a[:, None], shape))  # noqa: E731
         sample = [rows(block[:, i]) for i in range(dim)]
-        offset = rows(offset) if subtract else None
+        offset = rows(offset[0]) if offset else None
         tangent, slope = (
             [rows(tangent[:, i]) for i in range(dim)],
             [rows(slope[:, i]) for i in range(dim)],
@@ -229,13 +229,11 @@ def _min_over_segments(points, samples, tangents, bits: int, offsets=None, per_b
             acc = d2 if acc is None else jnp.minimum(acc, d2)
         return acc
 
-    slopes = _slopes(tangents)
-    subtract = offsets is not None
-    offsets = offsets if subtract else jnp.zeros(num, samples.dtype)
+    arrays = (samples, tangents, _slopes(tangents)) + (() if offsets is None else (offsets,))
     if num_blocks == 1:
-        best = block_min(None, (jnp.int32(0), samples, tangents, slopes, offsets))
+        best = block_min(None, (jnp.int32(0), *arrays))
         return best[1:] if carry else best
-    blocks = [_in_blocks(a, num_blocks, size) for a in (samples, tangents, slopes, offsets)]
+    blocks = [_in_blocks(a, num_blocks, size) for a in arrays]
     firsts = jnp.arange(num_blocks, dtype=jnp.int32) * size
     if bits:
         init = jnp.full(points.shape[:1], jnp.iinfo(jnp.int32).max, jnp.int32)
