@@ -44,7 +44,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from swarmcurves_jax import design_matrix, fit_many, make_knots, normalise
+from swarmcurves_jax import Curve, fit_many, make_knots, normalise
 from swarmcurves_jax.datasets import random_bspline_points, random_nurbs_points
 from swarmcurves_jax.projection import project_points
 
@@ -88,48 +88,43 @@ def rows(only: str | None, quick: bool) -> list[Row]:
     return [r for r in out if only is None or r.kind == only]
 
 
-def curve_data(row: Row, seed: int, spacing: str = "parameter"):
-    """(points to fit, clean points, true control points with weights as a last column).
-    ``spacing``: the points at evenly spaced parameters, or evenly spaced by arc length
-    (:func:`by_arc_length`)."""
+def curve_data(row: Row, seed: int, spacing: str = "parameter") -> tuple[np.ndarray, Curve]:
+    """(points to fit, the true curve).  ``spacing``: the points at evenly spaced
+    parameters, or evenly spaced by arc length (:func:`by_arc_length`)."""
     if row.kind == "rational":
         pts, ctrl, w = random_nurbs_points(row.n, row.degree, row.closed, NUM_POINTS, row.dim, seed)
     else:
         pts, ctrl = random_bspline_points(row.n, row.degree, row.closed, NUM_POINTS, row.dim, seed)
         w = np.ones(row.n)
+    knots = make_knots(row.n, row.degree, row.closed)
+    truth = Curve(row.degree, ctrl, w, knots, closed=row.closed, rational=row.kind == "rational")
     if spacing == "arclength":
-        pts = by_arc_length(row, ctrl, w)
-    clean = pts
+        pts = by_arc_length(truth)
     if row.kind == "noisy":
         _, _, scale = normalise(pts)
         noise = np.random.default_rng(seed + 10_000).normal(0.0, NOISE * scale, pts.shape)
         pts = pts + noise
-    return pts, clean, np.c_[ctrl, w]
+    return pts, truth
 
 
-def by_arc_length(row: Row, ctrl: np.ndarray, w: np.ndarray, dense: int = 20_000) -> np.ndarray:
+def by_arc_length(truth: Curve, dense: int = 20_000) -> np.ndarray:
     """The true curve's points evenly spaced by arc length, each evaluated exactly at its
     parameter (interpolated from a dense polyline's lengths).  Points at evenly spaced
     parameters are what a least-squares fit on uniform parameters recovers in one solve;
     scans and sketches are not sampled that way."""
-    knots = make_knots(row.n, row.degree, row.closed)
-
-    def at(u):
-        b = design_matrix(u, knots, row.degree, closed=row.closed)
-        return (b @ (ctrl * w[:, None])) / (b @ w)[:, None]
-
     u = np.linspace(0.0, 1.0, dense + 1)
-    xy = at(u[:-1] if row.closed else u)
-    xy = np.vstack([xy, xy[:1]]) if row.closed else xy
+    xy = truth.evaluate(u[:-1] if truth.closed else u)
+    xy = np.vstack([xy, xy[:1]]) if truth.closed else xy
     length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
-    target = np.linspace(0.0, length[-1], NUM_POINTS, endpoint=not row.closed)
-    return at(np.interp(target, length, u))
+    target = np.linspace(0.0, length[-1], NUM_POINTS, endpoint=not truth.closed)
+    return truth.evaluate(np.interp(target, length, u))
 
 
-def noise_floor(row: Row, pts: np.ndarray, truth: np.ndarray, scale: float) -> float:
+def noise_floor(pts: np.ndarray, truth: Curve, scale: float) -> float:
     """Mean distance of the points to the true curve, in the fit's normalised frame."""
-    knots = make_knots(row.n, row.degree, row.closed)
-    dist, _ = project_points(pts, truth[:, :-1], truth[:, -1], knots, row.degree, row.closed)
+    dist, _ = project_points(
+        pts, truth.control_points, truth.weights, truth.knots, truth.degree, truth.closed
+    )
     return float(np.mean(dist)) / scale
 
 
@@ -147,12 +142,12 @@ def run_row(row: Row, seeds: list[int], spacing: str = "parameter") -> dict:
     )
     per_fit = (time.perf_counter() - start) / len(seeds)
     errors, bars, curves = [], [], []
-    for (pts, _, truth), result in zip(data, results):
+    for (pts, truth), result in zip(data, results):
         curve = result[row.degree, row.n]
         errors.append(curve.error)
         curves.append((pts, curve))
         if row.kind == "noisy":
-            bars.append(NOISE_FACTOR * noise_floor(row, pts, truth, result.scale))
+            bars.append(NOISE_FACTOR * noise_floor(pts, truth, result.scale))
         else:
             bars.append(EXACT)
     errors, bars = np.array(errors), np.array(bars)

@@ -171,7 +171,9 @@ def min_excess2(
     return _min_over_segments(points, centres, halves, 0, allowance2, _EXCESS_COORDS)
 
 
-def _min_over_segments(points, samples, tangents, bits: int, offsets=None, per_block=None):
+def _min_over_segments(
+    points, samples, tangents, bits: int, offsets=None, per_block: int = _BLOCK_COORDS
+):
     """The smallest squared point-to-segment distance (N,) over the segments, less each
     segment's ``offsets`` where given, in blocks of ``per_block`` coordinates
     (:func:`search_blocks`); with ``bits`` > 0, int32 whose low ``bits`` hold the nearest
@@ -182,7 +184,7 @@ def _min_over_segments(points, samples, tangents, bits: int, offsets=None, per_b
     The minimum of the tagged bits is taken as integers: non-negative floats order as
     their bits do, and no denormal is flushed (a float 0 tagged would be one)."""
     num, dim = samples.shape
-    num_blocks, size = search_blocks(num, dim, per_block or _BLOCK_COORDS)
+    num_blocks, size = search_blocks(num, dim, per_block)
     keep = jnp.int32(~((1 << bits) - 1))  # the distance's bits above the tag
     carry = bits > 0 and starts_on_segment(num, dim)
     coords = [points[:, i] for i in range(dim)]
