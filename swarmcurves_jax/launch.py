@@ -227,7 +227,7 @@ def chunks(batch: Batch, drawn, place: Placement, opts: FitOptions, stop) -> Ite
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
     max_steps = np.asarray(opts.iterations, np.int32)
     shared = place.shared((batch.pair_ids, params, batch.bases, tol, max_steps))
-    steps = min(opts.chunk_size, opts.iterations)
+    steps = opts.chunk_size  # the program skips steps past the iterations: one length
     static = dict(
         space=batch.space,
         num_steps=steps,
@@ -347,7 +347,7 @@ def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, rep
     with ThreadPoolExecutor(len(parts)) as pool:
         futures = [pool.submit(run_part, i) for i in range(len(parts))]
         try:
-            _relay(events, len(parts), min(opts.chunk_size, opts.iterations), report, merged)
+            _relay(events, len(parts), opts.chunk_size, report, merged)
         except KeyboardInterrupt:
             stop.set()
             interrupted = True

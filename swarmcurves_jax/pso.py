@@ -285,19 +285,37 @@ def run_swarms(
     same numbers :func:`update` would make: made inside it, XLA:CPU recomputed the hash
     in each fusion that reads them (position, velocity, restart), and W1 took 2-3 % longer
     (measured).
+
+    Steps from iteration ``max_steps`` on (counted from ``first``) are skipped, not run
+    frozen: one compiled chunk length serves every iteration count, and a last, partial
+    chunk costs only the steps it runs.  A skipped step's info repeats the best fitness,
+    with a NaN mean and no restart.
     """
     move = jax.vmap(update, in_axes=(0, 0, None, 0, 0, None, None, 0))
     draw = jax.vmap(step_draws)
     remembers = memory is not None
     fn = fitness_fn if remembers else lambda positions, mem, _: (fitness_fn(positions), mem)
 
-    def body(carry, i):
-        s, mem, draws = carry
+    def body(i, carry):
+        s, mem, draws, info = carry
         fit, mem = fn(s.position, mem, first + i)
-        s, info = move(keys, s, params, boxes, fit, tol, max_steps, draws)
-        return (s, mem, draw(keys, s)), info
+        s, new = move(keys, s, params, boxes, fit, tol, max_steps, draws)
+        info = jax.tree_util.tree_map(lambda a, b: a.at[i].set(b), info, new)
+        return s, mem, draw(keys, s), info
 
-    steps = jnp.arange(num_steps, dtype=jnp.int32)
-    carry = (states, memory, draw(keys, states))
-    (states, memory, _), info = jax.lax.scan(body, carry, steps)
+    # Skipped steps' rows: the best fitness (filled in below), a NaN mean, no restart.
+    best = states.best_fitness
+    info = PSOInfo(
+        jnp.zeros((num_steps, *best.shape), best.dtype),
+        jnp.full((num_steps, *best.shape), jnp.nan, best.dtype),
+        jnp.zeros((num_steps, *best.shape), bool),
+    )
+    # `first` and `max_steps` are shared by every swarm and curve: under the callers'
+    # vmaps the trip count stays one number (a batched one would run every swarm to the
+    # longest).
+    count = jnp.clip(jnp.asarray(max_steps, jnp.int32) - first, 0, num_steps)
+    carry = (states, memory, draw(keys, states), info)
+    states, memory, _, info = jax.lax.fori_loop(0, count, body, carry)
+    ran = jnp.arange(num_steps).reshape(-1, *([1] * best.ndim)) < count
+    info = info._replace(best_fitness=jnp.where(ran, info.best_fitness, states.best_fitness))
     return ((states, memory) if remembers else states), info

@@ -50,6 +50,29 @@ def test_mixed_degrees_and_counts_compile_one_program_once():
     assert second == []  # same shapes: nothing at all is compiled again
 
 
+def test_a_call_of_the_same_kind_compiles_nothing():
+    """What varies from call to call on the same kind of data compiles nothing: the seed,
+    the values, the iteration count (the program skips the steps past it), ``tol``, and
+    the point count within a bucket (146 and 150 points are both padded to 160)."""
+    u = np.linspace(0, 1, 150)
+    coef = np.random.default_rng(1).uniform(-1, 1, (6, 2))
+    pts = design_matrix(u, make_knots(6, 3, False), 3) @ coef
+    kwargs = dict(cps=range(4, 7), degrees=(2, 3), particles=16)
+    first = compiles_during(lambda: fit(pts, iterations=60, **kwargs))
+    assert sum("swarm_program" in m for m in first) == 1
+    fewer = np.linspace(0, 1, 146)
+    again = {
+        "seed": lambda: fit(pts, iterations=60, seed=7, **kwargs),
+        "values": lambda: fit(pts * 3.0 + 1.0, iterations=60, **kwargs),
+        "iterations": lambda: fit(pts, iterations=45, **kwargs),
+        "more iterations": lambda: fit(pts, iterations=250, **kwargs),
+        "tol": lambda: fit(pts, iterations=60, tol=1e-4, **kwargs),
+        "points": lambda: fit(design_matrix(fewer, make_knots(6, 3, False), 3) @ coef, **kwargs),
+    }
+    for name, call in again.items():
+        assert compiles_during(call) == [], name
+
+
 def test_random_keys_and_draws_compile_apart(tmp_path):
     """The initial draws are a small program of their own (``search.initial_draws``, compiled
     once per shape): threefry compiled into every swarm program cost each about 1 s."""
@@ -108,7 +131,9 @@ def test_the_programs_a_gpu_runs_lower_for_cuda(monkeypatch):
             with monkeypatch.context() as patch:
                 patch.setattr(jax, "default_backend", lambda: backend)
                 for program, found in zip(programs, texts.values()):
-                    patch.setattr(launch_module, program.__name__, _LowerFor(program, platform, found))
+                    patch.setattr(
+                        launch_module, program.__name__, _LowerFor(program, platform, found)
+                    )
                 result = fit(pts, refine=refine, **kwargs)
         finally:  # the backend is read while tracing: no trace made here may be reused
             for program in programs:

@@ -1,5 +1,7 @@
 """The swarm as pure functions: it optimises, it is deterministic, chunking changes nothing."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -180,3 +182,31 @@ def test_run_swarms_carries_a_memory_across_steps_and_chunks():
         np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(a, c)
     np.testing.assert_array_equal(info.best_fitness, plain_info.best_fitness)
+
+
+def test_run_swarms_skips_the_steps_past_max_steps():
+    """A chunk longer than the steps left runs only those (the fitness is not evaluated
+    past ``max_steps``) and ends where a chunk of exactly that length ends; the skipped
+    rows of its info repeat the final best."""
+    keys = jnp.stack([jax.random.key(2), jax.random.key(3)])
+    boxes = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), box(3))
+    states = jax.vmap(lambda k, b: pso.init(k, b, 8))(keys, boxes)
+    params = pso.default_params()
+
+    def fitness(positions, memory, iteration):
+        return sphere(positions), memory + 1
+
+    run = functools.partial(pso.run_swarms, keys, states, params, boxes, fitness)
+    (exact, evaluations), info = run(70, memory=jnp.int32(0))
+    (long, skipped), long_info = run(100, max_steps=70, memory=jnp.int32(0))
+    assert (int(evaluations), int(skipped)) == (70, 70)
+    for a, b in zip(exact, long):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(long_info.best_fitness[:70], info.best_fitness)
+    np.testing.assert_array_equal(
+        long_info.best_fitness[70:], np.broadcast_to(long.best_fitness, (30, 2))
+    )
+    assert np.isnan(long_info.mean_fitness[70:]).all() and not long_info.restarted[70:].any()
+    # Started at 60 of 70, a chunk of 100 runs 10 steps.
+    (_, ten), _ = run(100, max_steps=70, memory=jnp.int32(0), first=60)
+    assert int(ten) == 10
