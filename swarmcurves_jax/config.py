@@ -120,6 +120,12 @@ SCHEMA = {
         "tolerance for 'sparsest' in the points' units instead (largest deviation)",
     ),
     "out": (None, "str?", "output folder (nothing is written without one)"),
+    "cache_dir": (
+        None,
+        "str?",
+        "folder keeping compiled programs across runs ('off': keep none; default: "
+        "$SWARMCURVES_CACHE_DIR, else the per-user cache folder; docs/performance.md)",
+    ),
     "figures": (["best", "error_vs_cps"], FIGURES, "PNG figures to write: " + ", ".join(FIGURES)),
     "exports": (list(EXPORTS), EXPORTS, "files to write: " + ", ".join(EXPORTS)),
 }

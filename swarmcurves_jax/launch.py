@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import pso
+from . import compile_cache, pso
 from .dealing import part_groups, split_swarms, swarm_costs
 from .devices import Placement
 from .layout import Layout, search_boxes
@@ -112,6 +112,7 @@ def launch(
     ``opts.stage_timings`` asks to time each.
     """
     start = time.perf_counter() if start is None else start
+    compile_cache.ensure()
     num = len(preps)
     size = num + (-num % place.multiple) if size is None else size
     _check_memory(preps[0], opts, min(place.batch, size) * place.multiple)

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .compile_cache import use_cache
 from .config import EXPORT_FILES, SCHEMA, ConfigError, fit_options, load_config
 from .inputs import is_batch, load_inputs
 
@@ -164,6 +165,8 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         cfg = load_config(args)
+        if cfg["cache_dir"] is not None:
+            use_cache(cfg["cache_dir"])
         curves = load_inputs(cfg)
         if cfg["closed"] is not None:
             curves = [(pts, cfg["closed"], label) for pts, _, label in curves]

@@ -1,0 +1,113 @@
+"""Compiled programs are kept across processes by default, read back, and a damaged entry
+costs a compilation, not the fit."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import pytest
+
+from swarmcurves_jax import compile_cache
+
+# A fresh process fits a short call and prints how many programs it read back from the
+# persistent cache, the folder JAX used, and the curves (their control points).
+SCRIPT = textwrap.dedent(
+    """
+    import json, logging
+    import numpy as np
+    from swarmcurves_jax import compile_cache, fit
+
+    hits = []
+    class Hits(logging.Handler):
+        def emit(self, record):
+            if "Persistent compilation cache hit" in record.getMessage():
+                hits.append(record.getMessage())
+    logger = logging.getLogger("jax._src.compiler")
+    logger.addHandler(Hits())
+    logger.setLevel(logging.DEBUG)
+    u = np.linspace(0, 1, 70)
+    result = fit(np.c_[u, np.sin(4 * u)], cps=[5, 6], particles=8, iterations=20)
+    print(json.dumps({
+        "hits": len(hits),
+        "folder": str(compile_cache.cache_dir()),
+        "curves": [s.control_points.tolist() for s in result.solutions],
+    }))
+    """
+)
+
+
+def run_fresh(env_changes, tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "SWARMCURVES_"))}
+    env.update(XDG_CACHE_HOME=str(tmp_path / "home-cache"), **env_changes)
+    done = subprocess.run(
+        [sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1]), done.stderr
+
+
+def entries(folder):
+    return sorted(p.name.split("-")[0] for p in folder.glob("*-cache"))
+
+
+def test_a_second_process_reads_the_programs_back_and_survives_damaged_entries(tmp_path):
+    folder = tmp_path / "programs"
+    first, _ = run_fresh({compile_cache.ENV: str(folder)}, tmp_path)
+    assert first["hits"] == 0 and first["folder"] == str(folder)
+    kept = entries(folder)
+    assert {"jit_swarm_program", "jit_polish_program", "jit_initial_draws"} <= set(kept)
+    second, _ = run_fresh({compile_cache.ENV: str(folder)}, tmp_path)
+    assert second["hits"] >= 3  # the draws, the swarm and the polish
+    assert second["curves"] == first["curves"]  # the same executables: the same curves
+    for entry in folder.glob("*-cache"):  # e.g. a process killed while writing
+        entry.write_bytes(entry.read_bytes()[:100])
+    third, stderr = run_fresh({compile_cache.ENV: str(folder)}, tmp_path)
+    assert "Error reading persistent compilation cache entry" in stderr
+    assert third["curves"] == first["curves"]
+
+
+def test_the_default_folder_is_the_users_cache_and_off_keeps_nothing(tmp_path):
+    used, _ = run_fresh({}, tmp_path)
+    default = tmp_path / "home-cache" / "swarmcurves_jax" / "xla"
+    assert used["folder"] == str(default) and entries(default)
+    other = tmp_path / "other"
+    off, _ = run_fresh({compile_cache.ENV: "off"}, other)
+    assert off["folder"] == "None" and not (other / "home-cache").exists()
+    mine = tmp_path / "jax-own"
+    theirs, _ = run_fresh({"JAX_COMPILATION_CACHE_DIR": str(mine)}, other)
+    assert theirs["folder"] == str(mine) and entries(mine)  # JAX's own setting is kept
+    assert not (other / "home-cache").exists()
+
+
+def test_use_cache_names_the_folder_and_off_turns_it_off(tmp_path, monkeypatch):
+    saved = {
+        name: getattr(jax.config, name)
+        for name in (
+            "jax_compilation_cache_dir",
+            "jax_enable_compilation_cache",
+            "jax_compilation_cache_max_size",
+            "jax_persistent_cache_min_compile_time_secs",
+        )
+    }
+    monkeypatch.setattr(compile_cache, "_decided", False)
+    try:
+        assert compile_cache.use_cache(tmp_path / "a") == tmp_path / "a"
+        assert compile_cache.cache_dir() == tmp_path / "a" and (tmp_path / "a").is_dir()
+        assert compile_cache.use_cache("off") is None
+        assert compile_cache.cache_dir() is None
+        monkeypatch.setenv(compile_cache.ENV, str(tmp_path / "b"))
+        assert compile_cache.default_dir() == tmp_path / "b"
+        monkeypatch.setenv(compile_cache.ENV, " OFF ")
+        assert compile_cache.default_dir() is None
+    finally:
+        for name, value in saved.items():
+            jax.config.update(name, value)
+
+
+@pytest.mark.parametrize("value", ["off", "none", "0", "false", ""])
+def test_every_spelling_of_off_is_off(monkeypatch, value):
+    monkeypatch.setenv(compile_cache.ENV, value)
+    assert compile_cache.default_dir() is None
