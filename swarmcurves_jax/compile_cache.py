@@ -16,17 +16,36 @@ on Linux), bounded to :data:`MAX_BYTES` (least recently used entries go first), 
 JAX has one cache per process, so the user's own programs that take a second or more to
 compile are kept there too.  An unreadable or stale entry is not fatal: JAX warns and
 compiles again.
+
+A cached compilation still pays the Python tracing that builds the program (about 2 s of
+``fit(f4)``'s first call).  So the swarm and the polish are also kept as exported
+programs (:mod:`jax.export`, in ``exported/`` beside JAX's entries), keyed by everything
+that shapes their trace (this package's source, JAX's version and settings, the backend,
+the static arguments and the arguments' shapes and types): a later process deserialises
+and calls them without tracing (:func:`program`).  An exported program computes exactly
+what the traced one computes (same curves, bit for bit: ``tests/test_compile_cache.py``).
 """
 
 from __future__ import annotations
 
+import enum
+import functools
+import hashlib
 import os
 import threading
 from pathlib import Path
 
 import jax
 
-__all__ = ["ENV", "MAX_BYTES", "MIN_COMPILE_SECONDS", "default_dir", "use_cache", "cache_dir"]
+__all__ = [
+    "ENV",
+    "MAX_BYTES",
+    "MIN_COMPILE_SECONDS",
+    "default_dir",
+    "use_cache",
+    "cache_dir",
+    "program",
+]
 
 #: The environment variable that moves the cache (a folder) or turns it off (``off``).
 ENV = "SWARMCURVES_CACHE_DIR"
@@ -106,3 +125,132 @@ def ensure() -> None:
             RuntimeWarning,
             stacklevel=3,
         )
+
+
+#: Exported programs loaded or made in this process, by key.
+_programs: dict[tuple, object] = {}
+
+
+def program(jitted, compiler_options: dict, *args, **static):
+    """``functools.partial(jitted, **static)`` for arguments like ``args`` (arrays or
+    :class:`jax.ShapeDtypeStruct`), traced and lowered now.
+
+    With a cache folder and one device per program (no ``mesh``), it is the exported
+    program: read from the folder, or exported there once (atomically); the call is then
+    ``jax.jit(exported.call, compiler_options=...)``, whose compilation JAX's cache keeps.
+    """
+    folder = cache_dir()
+    if folder is None or static.get("mesh") is not None:
+        jitted.trace(*args, **static).lower()
+        return functools.partial(jitted, **static)
+    key = _key(jitted, args, static)
+    device = _device(args)
+    call = _programs.get((key, device))
+    if call is None:
+        from jax import export
+
+        _register_trees()
+        path = folder / "exported" / f"{jitted.__name__}-{key}.jaxexport"
+        exported = _read(path)
+        if exported is None:
+            shapes = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), args)
+            exported = export.export(jitted)(*shapes, **static)
+            _write(path, exported.serialize())
+        # One placement for every call: arguments made on the host and a previous call's
+        # results (committed to the device) then lower alike, and compile once.
+        on = jax.sharding.SingleDeviceSharding(device)
+        run = functools.wraps(jitted)(lambda *a: exported.call(*a))  # logs name the program
+        call = jax.jit(run, in_shardings=on, out_shardings=on, compiler_options=compiler_options)
+        _programs[key, device] = call
+    call.trace(*args).lower()
+    return call
+
+
+def _key(jitted, args, static) -> str:
+    """What shapes the trace: this package's source, JAX (version, backend and the
+    settings a trace reads), the program, its static arguments, its arguments' types."""
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    avals = [_aval(a if isinstance(a, jax.ShapeDtypeStruct) else jax.typeof(a)) for a in leaves]
+    settings = [v for v in _trace_settings() if isinstance(v, (bool, int, float, str, enum.Enum))]
+    parts = [
+        _source_hash(),
+        jax.__version__,
+        jax.default_backend(),
+        repr(settings),
+        f"{jitted.__module__}.{jitted.__name__}",
+        repr(sorted(static.items())),
+        str(tree),
+        repr(avals),
+    ]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:40]
+
+
+def _device(args) -> jax.Device:
+    """The device the arguments are placed on (JAX's default one if none is)."""
+    for a in jax.tree_util.tree_leaves(args):
+        sharding = getattr(a, "sharding", None)
+        if isinstance(sharding, jax.sharding.SingleDeviceSharding):
+            return next(iter(sharding.device_set))
+    return jax.devices()[0]
+
+
+def _aval(a) -> tuple:
+    """Shape, type and weakness: what a trace sees of an argument (not its placement)."""
+    return tuple(a.shape), str(a.dtype), bool(getattr(a, "weak_type", False))
+
+
+def _trace_settings():
+    from jax._src import config
+
+    return config.trace_context()
+
+
+@functools.lru_cache(maxsize=1)
+def _source_hash() -> str:
+    """This package's source: an edited module never reads an older program."""
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(path.name.encode() + path.read_bytes())
+    return digest.hexdigest()
+
+
+@functools.lru_cache(maxsize=1)
+def _register_trees() -> None:
+    """The NamedTuples our programs take and return, by name, for serialisation."""
+    from jax import export
+
+    from .pso import Box, PSOInfo, PSOParams, PSOState
+    from .span_basis import SpanBasis
+
+    for cls in (PSOState, PSOParams, PSOInfo, Box, SpanBasis):
+        export.register_namedtuple_serialization(
+            cls, serialized_name=f"swarmcurves_jax.{cls.__name__}"
+        )
+
+
+def _read(path: Path):
+    """The exported program at ``path``, or None (absent or unreadable: made again)."""
+    from jax import export
+
+    try:
+        return export.deserialize(bytearray(path.read_bytes()))
+    except FileNotFoundError:
+        return None
+    except Exception as exc:  # damaged (e.g. a disk filled while writing): made again
+        import warnings
+
+        warnings.warn(
+            f"swarmcurves_jax: unreadable exported program {path} ({type(exc).__name__}: "
+            f"{exc}); exporting it again",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return None
+
+
+def _write(path: Path, data: bytes) -> None:
+    """Write ``data`` atomically (another process reads it whole or not at all)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}")
+    temporary.write_bytes(data)
+    os.replace(temporary, path)

@@ -24,10 +24,10 @@ from . import compile_cache, pso
 from .dealing import part_groups, split_swarms, swarm_costs
 from .devices import Placement
 from .layout import Layout, search_boxes
-from .objective import stack_bases
+from .objective import CPU_COMPILER_OPTIONS, stack_bases
 from .options import FitOptions
 from .polish import polish_bases, polish_program
-from .search import initial_draws, swarm_program
+from .search import SWARM_COMPILER_OPTIONS, initial_draws, swarm_program
 from .seeds import seed_positions
 
 __all__ = ["Batch", "Inputs", "Progress", "Launched", "launch", "chunks", "follow", "run_dealt"]
@@ -247,10 +247,12 @@ def chunks(batch: Batch, drawn, place: Placement, opts: FitOptions, stop) -> Ite
                 place.abstract((*lead, batch.keys.shape[1]), np.uint32),
                 place.abstract((*lead, opts.particles, batch.space.size), dtype),
             )
-            with TRACING:  # the first call's trace and lowering, cached for it
-                swarm_program.trace(*abstract, *args, **static).lower()
+            with TRACING:  # the first call's trace and lowering, kept for it
+                run = compile_cache.program(
+                    swarm_program, SWARM_COMPILER_OPTIONS, *abstract, *args, **static
+                )
             draws = place.curves(drawn())
-        state, feet, info = swarm_program(*draws, *args, **static)
+        state, feet, info = run(*draws, *args)
         history = progress.history + (info.best_fitness,)
         progress = progress._replace(
             state=state, feet=feet, history=history, done=progress.done + steps
@@ -391,10 +393,15 @@ def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement
     """Queue the polish of every swarm's solution (:mod:`swarmcurves_jax.polish`)."""
     space, pairs, groups = batch.space, batch.pairs, batch.groups
     inputs = progress.inputs or place.curves(batch.inputs)
-    return polish_program(
+    args = (
         progress.state,
         *inputs,
         place.shared((batch.pair_ids, polish_bases(pairs, groups, space, opts.dtype))),
+    )
+    run = compile_cache.program(
+        polish_program,
+        CPU_COMPILER_OPTIONS,
+        *args,
         space=space,
         method=opts.method,
         seeded=opts.init == "lsq",
@@ -402,6 +409,7 @@ def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement
         mesh=place.mesh,
         batch=place.batch,
     )
+    return run(*args)
 
 
 def _reporter(batch: Batch, opts: FitOptions, callback, bar):

@@ -8,9 +8,10 @@ import sys
 import textwrap
 
 import jax
+import numpy as np
 import pytest
 
-from swarmcurves_jax import compile_cache
+from swarmcurves_jax import compile_cache, fit
 
 # A fresh process fits a short call and prints how many programs it read back from the
 # persistent cache, the folder JAX used, and the curves (their control points).
@@ -62,11 +63,30 @@ def test_a_second_process_reads_the_programs_back_and_survives_damaged_entries(t
     second, _ = run_fresh({compile_cache.ENV: str(folder)}, tmp_path)
     assert second["hits"] >= 3  # the draws, the swarm and the polish
     assert second["curves"] == first["curves"]  # the same executables: the same curves
-    for entry in folder.glob("*-cache"):  # e.g. a process killed while writing
+    exported = sorted((folder / "exported").glob("*.jaxexport"))
+    assert {p.name.split("-")[0] for p in exported} == {"swarm_program", "polish_program"}
+    damaged = [*folder.glob("*-cache"), *exported]
+    for entry in damaged:  # e.g. a process killed while writing
         entry.write_bytes(entry.read_bytes()[:100])
     third, stderr = run_fresh({compile_cache.ENV: str(folder)}, tmp_path)
     assert "Error reading persistent compilation cache entry" in stderr
+    assert "unreadable exported program" in stderr
     assert third["curves"] == first["curves"]
+    assert all(len(p.read_bytes()) > 100 for p in exported)  # made again, whole
+
+
+def test_an_exported_program_computes_the_traced_programs_curves(monkeypatch):
+    """Read back from the cache or traced in this process, a program gives the same
+    curves bit for bit (here 3D, closed, two degrees, polished)."""
+    t = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+    pts = np.c_[np.cos(t), np.sin(2 * t), 0.3 * np.sin(3 * t)]
+    kwargs = dict(cps=[6, 8], degrees=(2, 3), closed=True, particles=16, iterations=60)
+    exported = fit(pts, **kwargs)
+    monkeypatch.setattr(compile_cache, "cache_dir", lambda: None)
+    traced = fit(pts, **kwargs)
+    for a, b in zip(exported.solutions, traced.solutions, strict=True):
+        np.testing.assert_array_equal(a.control_points, b.control_points)
+        assert a.error == b.error
 
 
 def test_the_default_folder_is_the_users_cache_and_off_keeps_nothing(tmp_path):

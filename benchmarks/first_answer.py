@@ -1,0 +1,243 @@
+"""What a user waits for: each call's first answer against its warm time, in fresh processes.
+
+    python benchmarks/first_answer.py [--iterations 2000] [--skip cli,w1] [--out DIR]
+
+A fresh process (an empty compilation cache in a new cache folder) makes the calls below
+in order, each then repeated in the same process for its warm time; then a second process
+makes the same calls with the same cache folder (what a user's next session sees):
+
+1. ``fit(f4)``: 200 points, the defaults;
+2. a new point count: f1 at 180 points;
+3. new degrees: f4 with ``degrees=(2, 3)``;
+4. a 3D helix of 300 points;
+5. a closed outline of 200 points (a random closed cubic B-spline);
+6. ``fit_many`` of 20 curves of 150-250 points;
+7. the command line's built-in example (``python -m swarmcurves_jax.run``, a process of
+   its own, import included), against the warm time of the same fit.
+
+W1 (f4, cps 4-10, degrees 1-3, no polish) is timed apart, in a process of its own with an
+empty cache (cold) and then with that cache (second process).
+
+Per call: the wall time of the first call, its warm time, their ratio, the time JAX spent
+tracing and lowering and in the backend compiler during the first call, and the number of
+programs the backend compiled (cache hits excluded).  Prints the targets: fresh process
+every call within 2x its warm time, second process within 1.25x, W1 cold within 2x warm.
+Writes report.md (also printed) and report.json into ``--out`` (default
+``benchmarks/results/first_answer``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+CALLS = ("fit(f4)", "f1 at 180 points", "degrees 2 and 3", "3D helix", "closed outline", "fit_many")
+
+
+def _call(name: str, iterations: int):
+    """The call ``name`` as a function of no arguments (imports inside: a child's)."""
+    import numpy as np
+
+    from swarmcurves_jax import fit, fit_many
+    from swarmcurves_jax.datasets import analytic_points, random_bspline_points
+
+    f4 = analytic_points("f4")
+    if name == "fit(f4)":
+        return lambda: fit(f4, iterations=iterations)
+    if name == "f1 at 180 points":
+        f1 = analytic_points("f1", 180)
+        return lambda: fit(f1, iterations=iterations)
+    if name == "degrees 2 and 3":
+        return lambda: fit(f4, degrees=(2, 3), iterations=iterations)
+    if name == "3D helix":
+        t = np.linspace(0, 4 * np.pi, 300)
+        helix = np.c_[np.cos(t), np.sin(t), 0.2 * t]
+        return lambda: fit(helix, iterations=iterations)
+    if name == "closed outline":
+        outline = random_bspline_points(8, 3, True, num_points=200, seed=11)[0]
+        return lambda: fit(outline, closed=True, iterations=iterations)
+    if name == "fit_many":
+        sets = [
+            random_bspline_points(6 + i % 4, 3, False, num_points=150 + 5 * i, seed=100 + i)[0]
+            for i in range(20)
+        ]
+        return lambda: fit_many(sets, iterations=iterations)
+    if name == "W1":
+        return lambda: fit(
+            f4, cps=range(4, 11), degrees=(1, 2, 3), refine=False, iterations=iterations
+        )
+    raise ValueError(f"unknown call {name!r}")
+
+
+class _Compiles:
+    """JAX's tracing, lowering and backend-compile events while active."""
+
+    def __init__(self):
+        import jax.monitoring
+
+        self.events = None
+        jax.monitoring.register_event_duration_secs_listener(self._on)
+
+    def _on(self, event, seconds, **_):
+        if self.events is not None:
+            self.events.append((event, seconds))
+
+    def __enter__(self):
+        self.events = []
+        return self
+
+    def __exit__(self, *exc):
+        events, self.events = self.events, None
+        self.trace = sum(s for e, s in events if e.endswith(("trace_duration", "module_duration")))
+        compiles = [s for e, s in events if e.endswith("backend_compile_duration")]
+        self.compile, self.count = sum(compiles), len(compiles)
+
+
+def child(names: list[str], iterations: int) -> list[dict]:
+    """Run the calls in this (fresh) process: first and warm time, compile figures."""
+    calls = [(name, _call(name, iterations)) for name in names]  # data made before timing
+    watch, rows = _Compiles(), []
+    for name, call in calls:
+        with watch:
+            start = time.perf_counter()
+            call()
+            first = time.perf_counter() - start
+        start = time.perf_counter()
+        call()
+        warm = time.perf_counter() - start
+        rows.append(
+            dict(
+                call=name,
+                first=first,
+                warm=warm,
+                trace=watch.trace,
+                compile=watch.compile,
+                compiles=watch.count,
+            )
+        )
+    return rows
+
+
+def _env(cache_home: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "SWARMCURVES_"))}
+    return dict(env, XDG_CACHE_HOME=str(cache_home), PYTHONPATH=str(REPO))
+
+
+def run_child(names, iterations, cache_home) -> list[dict]:
+    code = [sys.executable, __file__, "--child", ",".join(names), "--iterations", str(iterations)]
+    done = subprocess.run(code, env=_env(cache_home), capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def run_cli(cache_home, iterations: int) -> float:
+    """Seconds of the command line's built-in example, run bare as a user would."""
+    start = time.perf_counter()
+    subprocess.run(
+        [sys.executable, "-m", "swarmcurves_jax.run", "--iterations", str(iterations)],
+        env=_env(cache_home),
+        capture_output=True,
+        check=True,
+    )
+    return time.perf_counter() - start
+
+
+def measure(iterations: int, skip: set[str]) -> dict:
+    sessions = {"fresh": [], "second": []}
+    with tempfile.TemporaryDirectory() as home:
+        for session in sessions:
+            sessions[session] = run_child(list(CALLS), iterations, Path(home))
+        if "cli" not in skip:
+            warm = sessions["fresh"][0]["warm"]  # the example is fit(f4)'s call
+            with tempfile.TemporaryDirectory() as cli_home:
+                for session in sessions:
+                    seconds = run_cli(Path(cli_home), iterations)
+                    sessions[session].append(
+                        dict(call="command line example", first=seconds, warm=warm)
+                    )
+    if "w1" not in skip:
+        with tempfile.TemporaryDirectory() as w1_home:
+            for session in sessions:
+                sessions[session] += run_child(["W1"], iterations, Path(w1_home))
+    return sessions
+
+
+def report(sessions: dict, iterations: int) -> str:
+    import jax
+
+    import swarmcurves_jax
+
+    lines = [
+        "# The first answer against the warm one",
+        "",
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, "
+        f"JAX {jax.__version__}, swarmcurves_jax {swarmcurves_jax.__version__}; "
+        f"{iterations} iterations per call.",
+        "",
+        "| call | fresh: first | warm | ratio | trace + lower | backend compile (count) "
+        "| second process: first | warm | ratio |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    second = {row["call"]: row for row in sessions["second"]}
+    for row in sessions["fresh"]:
+        again = second[row["call"]]
+        compile_cell = (
+            f"{row['compile']:.1f} s ({row['compiles']})"
+            if "compiles" in row
+            else "(another process)"
+        )
+        trace_cell = f"{row['trace']:.1f} s" if "trace" in row else ""
+        lines.append(
+            f"| {row['call']} | {row['first']:.2f} s | {row['warm']:.2f} s "
+            f"| {row['first'] / row['warm']:.1f}x | {trace_cell} | {compile_cell} "
+            f"| {again['first']:.2f} s | {again['warm']:.2f} s "
+            f"| {again['first'] / again['warm']:.2f}x |"
+        )
+    fresh = [r for r in sessions["fresh"] if r["call"] != "W1"]
+    again = [r for r in sessions["second"] if r["call"] != "W1"]
+    worst_fresh = max(r["first"] / r["warm"] for r in fresh)
+    worst_again = max(r["first"] / r["warm"] for r in again)
+    lines += [
+        "",
+        _target("Fresh process: every call within 2x its warm time", worst_fresh, 2.0),
+        _target("Second process: every call within 1.25x its warm time", worst_again, 1.25),
+    ]
+    w1 = [r for r in sessions["fresh"] if r["call"] == "W1"]
+    if w1:
+        lines.append(_target("W1 cold within 2x W1 warm", w1[0]["first"] / w1[0]["warm"], 2.0))
+    return "\n".join(lines) + "\n"
+
+
+def _target(what: str, worst: float, bound: float) -> str:
+    met = "met" if worst <= bound else f"NOT met (by {worst / bound:.2f}x)"
+    return f"- {what}: {met}, worst {worst:.2f}x"
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--iterations", type=int, default=2000)
+    parser.add_argument("--skip", default="", help="comma-separated: cli, w1")
+    parser.add_argument("--out", type=Path, default=REPO / "benchmarks/results/first_answer")
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        print(json.dumps(child(args.child.split(","), args.iterations)))
+        return
+    sessions = measure(args.iterations, set(filter(None, args.skip.split(","))))
+    text = report(sessions, args.iterations)
+    print(text)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "report.md").write_text(text)
+    (args.out / "report.json").write_text(json.dumps(sessions, indent=1))
+
+
+if __name__ == "__main__":
+    main()
