@@ -96,13 +96,8 @@ def levenberg_marquardt(
     l2_steps: int = LM_L2_STEPS,
     l1_steps: int = LM_L1_STEPS,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """Levenberg–Marquardt on ``problem`` from ``x0``.
-
-    Each step evaluates its trial point once: the search there, then the residuals and
-    their Jacobian in one linearisation, kept if the step is accepted.  So ``search`` and
-    ``residuals`` are each traced once (they dominate the compile time), and a rejected
-    step costs no second Jacobian at an unchanged point.  The first trial is ``x0``; the
-    last step's proposal is not evaluated.
+    """Levenberg–Marquardt on ``problem`` from ``x0``; the search runs once per step, for
+    the trial point, outside the linearisation (it dominates compile time).
 
     Returns ``(x, mean distance over all points, score)`` for the iterate with the best
     score (``x0`` included): the hold-out mean, or without hold-out the mean itself.
@@ -112,41 +107,31 @@ def levenberg_marquardt(
     train, score = _scores(holdout, valid, penalty)
     mean = _mean(valid)
 
-    def body(carry, step):
-        x, d, jac, w, mu, best, trial = carry
-        first, reweight = step[0] == 0, step[1]
-        aux = search(trial)
-        d_trial, jvp = jax.linearize(lambda y: residuals(y, aux), trial)
-        jac_trial = jax.vmap(jvp, out_axes=1)(eye * free[None, :])  # (N, P); frozen: zero
-        # `w`: the weights the trial was proposed with.  NaN compares False.
-        ok = first | (jnp.sum(w * d_trial**2) < jnp.sum(w * d**2))
-        best = _keep_better(ok, trial, d_trial, mean, score, best)
-        x, d, jac = (jnp.where(ok, a, b) for a, b in ((trial, x), (d_trial, d), (jac_trial, jac)))
-        mu = jnp.where(first, mu, jnp.clip(jnp.where(ok, mu / 3.0, mu * 4.0), 1e-10, 1e10))
+    def body(carry, reweight):
+        x, aux, mu, best = carry
+        d, jvp = jax.linearize(lambda y: residuals(y, aux), x)
+        jac = jax.vmap(jvp, out_axes=1)(eye * free[None, :])  # (N, P); frozen columns are zero
         floor = jnp.maximum(1e-2 * mean(d), 1e-8)
         w = train * jnp.where(reweight, 1.0 / jnp.maximum(d, floor), 1.0)
         a = float32_matmul((jac * w[:, None]).T, jac)
         g = float32_matmul(jac.T, w * d)
         a = a + mu * (jnp.diag(jnp.diag(a)) + 1e-9 * eye) + jnp.diag(1.0 - free)
-        trial = jnp.clip(x - spd_solve(a, g), lower, upper)
-        return (x, d, jac, w, mu, best, trial), None
+        x_new = jnp.clip(x - spd_solve(a, g), lower, upper)
+        aux_new = search(x_new)
+        d_new = residuals(x_new, aux_new)
+        ok = jnp.sum(w * d_new**2) < jnp.sum(w * d**2)  # NaN compares False
+        x = jnp.where(ok, x_new, x)
+        aux = jnp.where(ok, aux_new, aux)
+        mu = jnp.clip(jnp.where(ok, mu / 3.0, mu * 4.0), 1e-10, 1e10)
+        best = _keep_better(ok, x_new, d_new, mean, score, best)
+        return (x, aux, mu, best), None
 
-    d0 = jnp.zeros(_num_residuals(problem, x0), x0.dtype)
-    jac0 = jnp.zeros((*d0.shape, *x0.shape), x0.dtype)
-    mu0, inf = jnp.asarray(1e-3, x0.dtype), jnp.asarray(jnp.inf, x0.dtype)
-    init = (x0, d0, jac0, d0, mu0, (x0, inf, inf), x0)
-    steps = l2_steps + l1_steps
-    stages = (jnp.arange(steps + 1), jnp.arange(steps + 1) >= l2_steps)
-    (_, _, _, _, _, best, _), _ = jax.lax.scan(body, init, stages)
+    aux0 = search(x0)
+    best0 = _keep_better(True, x0, residuals(x0, aux0), mean, score, None)
+    stages = jnp.arange(l2_steps + l1_steps) >= l2_steps
+    init = (x0, aux0, jnp.asarray(1e-3, x0.dtype), best0)
+    (_, _, _, best), _ = jax.lax.scan(body, init, stages)
     return best
-
-
-def _num_residuals(problem: Problem, x0) -> int:
-    """The length of ``problem.residuals``: a mask's, or else found by tracing it once."""
-    for m in (problem.holdout, problem.valid, problem.penalty):
-        if m is not None:
-            return m.shape[0]
-    return jax.eval_shape(lambda: problem.residuals(x0, problem.search(x0))).shape[0]
 
 
 def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:

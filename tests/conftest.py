@@ -1,3 +1,4 @@
+import logging
 import os
 import tempfile
 
@@ -26,3 +27,35 @@ settings.load_profile("ci" if os.environ.get("CI") else "dev")
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+class _Count(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.names = []
+
+    def emit(self, record):  # one per backend compilation (also a persistent-cache read)
+        msg = record.getMessage()
+        if msg.startswith("Finished XLA compilation of"):
+            self.names.append(msg)
+
+
+def _compiles_during(fn):
+    handler = _Count()
+    logger = logging.getLogger("jax")
+    old = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.DEBUG)
+    try:
+        with jax.log_compiles(True):
+            fn()
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old)
+    return handler.names
+
+
+@pytest.fixture
+def compiles_during():
+    """``compiles_during(fn)``: the backend compilations ``fn()`` causes (JAX's log lines)."""
+    return _compiles_during

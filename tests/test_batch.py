@@ -15,7 +15,6 @@ from hypothesis import strategies as st
 from swarmcurves_jax import fit, fit_many
 from swarmcurves_jax.batch import padding_waste
 from swarmcurves_jax.prepare import bucket_length
-from swarmcurves_jax.search import swarm_program
 
 OPTS = dict(cps=[4, 6], iterations=60, particles=16)
 
@@ -80,13 +79,13 @@ def test_batched_equals_one_by_one_bit_for_bit(lone):
     assert padding_waste(many) == pytest.approx(1 - 434 / 464)
 
 
-def test_one_compiled_program_per_bucket():
+def test_one_compiled_program_per_bucket(compiles_during):
     sets = [np.c_[np.linspace(0, 1, n), np.linspace(0, 1, n) ** 2] for n in (33, 40, 47, 60)]
-    before = swarm_program._cache_size()
     opts = dict(OPTS, particles=12)  # shapes no other test compiles
-    many = fit_many(sets, batch_size=2, **opts)  # buckets 48 (two calls of 2) and 64
-    assert {r.batch["bucket"] for r in many} == {48, 64}
-    assert swarm_program._cache_size() == before + 2
+    many = []
+    compiled = compiles_during(lambda: many.extend(fit_many(sets, batch_size=2, **opts)))
+    assert {r.batch["bucket"] for r in many} == {48, 64}  # 48: two calls of 2
+    assert sum("swarm_program" in m for m in compiled) == 2
     assert [r.batch["call"] for r in many] == [0, 0, 1, 2]
 
 

@@ -1,42 +1,14 @@
 """All swarms of a call are one compiled program; equal shapes never compile again."""
 
 import importlib
-import logging
 
 import jax
 import numpy as np
 
 from swarmcurves_jax import compile_cache, design_matrix, fit, make_knots
-from swarmcurves_jax.search import swarm_program
 
 
-class _Count(logging.Handler):
-    def __init__(self):
-        super().__init__(logging.DEBUG)
-        self.names = []
-
-    def emit(self, record):  # one per backend compilation (also a persistent-cache read)
-        msg = record.getMessage()
-        if msg.startswith("Finished XLA compilation of"):
-            self.names.append(msg)
-
-
-def compiles_during(fn):
-    handler = _Count()
-    logger = logging.getLogger("jax")
-    old = logger.level
-    logger.addHandler(handler)
-    logger.setLevel(logging.DEBUG)
-    try:
-        with jax.log_compiles(True):
-            fn()
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(old)
-    return handler.names
-
-
-def test_mixed_degrees_and_counts_compile_one_program_once():
+def test_mixed_degrees_and_counts_compile_one_program_once(compiles_during):
     u = np.linspace(0, 1, 120)
     pts = design_matrix(u, make_knots(6, 3, False), 3) @ np.random.default_rng(0).uniform(
         -1, 1, (6, 2)
@@ -48,7 +20,7 @@ def test_mixed_degrees_and_counts_compile_one_program_once():
     assert second == []  # same shapes: nothing at all is compiled again
 
 
-def test_a_call_of_the_same_kind_compiles_nothing():
+def test_a_call_of_the_same_kind_compiles_nothing(compiles_during):
     """What varies from call to call on the same kind of data compiles nothing: the seed,
     the values, the iteration count (the program skips the steps past it), ``tol``, and
     the point count within a bucket (146 and 150 points are both padded to 160)."""
@@ -71,7 +43,7 @@ def test_a_call_of_the_same_kind_compiles_nothing():
         assert compiles_during(call) == [], name
 
 
-def test_random_keys_and_draws_compile_apart(tmp_path):
+def test_random_keys_and_draws_compile_apart(tmp_path, compiles_during):
     """The initial draws are a small program of their own (``search.initial_draws``, compiled
     once per shape): threefry compiled into every swarm program cost each about 1 s."""
     u = np.linspace(0, 1, 80)
