@@ -3,13 +3,15 @@
 
     python benchmarks/bench_w1.py [--iterations 2000] [--repeats 3] [--refine lm]
                                   [--cpu-devices N] [--search-every N] [--workload w64]
+                                  [--cache empty|default]
 
 ``--workload w64`` is the GPU workload on the same data: degrees {2, 3, 4, 5} x cps
 10-25 (64 swarms) x 512 particles, 2000 iterations (24x W1's particles, at costlier degrees).
 
 W1 is the swarm alone (``refine=False``), the workload peers are compared on; ``--refine lm``
 adds the default refinement and prints its share (``FitResult.timings``).  Prints the cold
-time (first call: tracing + XLA compilation + run), the warm time (a second call of the same
+time (first call: tracing + XLA compilation + run, with an empty compilation cache unless
+``--cache default``), the warm time (a second call of the same
 shapes, which compiles nothing), peak resident memory, particle evaluations per second, the
 device and the JAX version; and, per warm run, the process's CPU time and the CPU time the
 machine's hypervisor stole (Linux ``/proc/stat``): on a shared virtual machine the wall time
@@ -23,12 +25,13 @@ import math
 import os
 import platform
 import resource
+import tempfile
 import time
 
 import jax
 import jax.numpy as jnp
 
-from swarmcurves_jax import fit
+from swarmcurves_jax import compile_cache, fit
 from swarmcurves_jax.datasets import analytic_points
 from swarmcurves_jax.devices import cpu_devices
 
@@ -107,8 +110,17 @@ def main(argv=None):
         default=os.cpu_count(),
         help="CPU devices JAX makes (fit deals its swarms over them); default: one per core",
     )
+    ap.add_argument(
+        "--cache",
+        choices=("empty", "default"),
+        default="empty",
+        help="the compilation cache of the cold call: a new, empty folder (default), or "
+        "the user's (what a later session reads back)",
+    )
     args = ap.parse_args(argv)
     jax.config.update("jax_num_cpu_devices", args.cpu_devices)
+    if args.cache == "empty":
+        compile_cache.use_cache(tempfile.mkdtemp(prefix="w1-cache-"))
     degrees, cps, particles = WORKLOADS[args.workload]
     particles = args.particles or particles
     pts = analytic_points("f4")

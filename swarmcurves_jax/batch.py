@@ -121,6 +121,7 @@ def fit_many(
             if on_result is not None:
                 on_result(i, results[i])
         if bar is not None:
+            bar.set_description("curves", refresh=False)
             bar.update(len(chosen))
 
     # A pipeline: call c + 1 is built (its least-squares seeds) and queued on the devices
@@ -193,4 +194,5 @@ def _platform(place: Placement) -> str:
 def _progress_bar(total):
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc="curves", unit="curve", leave=False)
+    # Until the first bucket is done, its wait is mostly compilation.
+    return tqdm(total=total, desc="curves (compiling)", unit="curve", leave=False)

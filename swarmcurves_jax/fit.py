@@ -111,4 +111,6 @@ def fit(
 def _progress_bar(iterations, pairs):
     from tqdm.auto import tqdm
 
-    return tqdm(total=iterations, desc=f"{len(pairs)} swarms", unit="it", leave=False)
+    # The first chunk's wait is mostly compilation (the report renames it once it ends).
+    desc = f"{len(pairs)} swarms: compiling"
+    return tqdm(total=iterations, desc=desc, unit="it", leave=False)

@@ -421,6 +421,8 @@ def _reporter(batch: Batch, opts: FitOptions, callback, bar):
     def report(at, best):
         at = min(at, opts.iterations)
         if bar is not None:
+            if bar.n == 0:  # compiled: the bar now counts iterations
+                bar.set_description(f"{len(batch.pairs)} swarms", refresh=False)
             bar.update(at - bar.n)
             bar.set_postfix_str(_best_per_degree(batch.pairs, best.min(axis=0)))
         if callback is not None:

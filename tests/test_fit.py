@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 
 import jax
 import numpy as np
@@ -46,6 +47,7 @@ def test_seed_grid_design_is_made_once_and_read_only():
     from swarmcurves_jax.basis import design_matrix
 
     from swarmcurves_jax.seeds import uniform_grid_design as grid_design
+
     dense = grid_design(7, 3, True)
     assert grid_design(7, 3, True) is dense
     grid = np.linspace(0.0, 1.0, 2048, endpoint=False)
@@ -96,6 +98,7 @@ def test_stacked_bases_are_made_once_and_read_only():
     from swarmcurves_jax.span_basis import make_span_basis
 
     from swarmcurves_jax.objective import stack_bases
+
     pairs = [(3, 5), (3, 8)]
     bases = stack_bases(pairs, False, 20, 10, np.float32)
     assert stack_bases([[3, 5], [3, 8]], False, 20, 10, "float32") is bases
@@ -329,3 +332,21 @@ def test_host_work_on_threads_equals_the_plain_loop():
 
     with pytest.raises(ValueError, match="swarm 7"):
         host_map(fails, range(20))
+
+
+def test_the_progress_bar_says_it_is_compiling_until_the_iterations_start(capsys):
+    """A first call waits mostly for compilation: the bar says so, then counts iterations."""
+    u = np.linspace(0, 1, 50)
+    fit(
+        np.c_[u, u**3],
+        cps=[4, 5],
+        degrees=2,
+        particles=8,
+        iterations=40,
+        chunk_size=20,
+        progress=True,
+        seed=3,
+    )
+    shown = capsys.readouterr().err
+    assert re.search(r"2 swarms: compiling: +0%", shown)
+    assert re.search(r"2 swarms: +[1-9]\d*%", shown)  # renamed once iterations ran
