@@ -104,8 +104,13 @@ def knot_vector(q, k, n, space) -> np.ndarray:
         return make_knots(n, k, space.closed)
     spans = n if space.closed else n - k
     logits = space.knot_logits(q)[: space.n_pad if space.closed else space.n_pad - k]
-    t = knots_from_widths(span_widths(logits, spans), spans, k, space.closed)
-    return t[: spans + 2 * k + 1]
+    t = knots_from_widths(span_widths(logits, spans), spans, k, space.closed)[: spans + 2 * k + 1]
+    if not space.closed:
+        # The widths' sum is 1 only to rounding; an end knot of 1 + 2e-16 left the last
+        # span out of the domain [0, 1] that the measures sample (its points were then
+        # projected onto the wrong span: errors up to 45x too large).
+        t[spans + k :] = 1.0
+    return t
 
 
 def geometry(q, space):

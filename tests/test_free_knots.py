@@ -4,7 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from swarmcurves_jax import Curve, design_matrix, fit
@@ -146,9 +146,7 @@ def test_a_reversed_input_returns_the_curve_that_was_measured(closed):
     pts = pts[::-1] if tuple(pts[0]) < tuple(pts[-1]) else pts  # the swarm fits the reverse
     curve = fit(pts, cps=[9], closed=closed, iterations=200, free_knots=True)[3, 9]
     check_knots(curve.knots, 9, 3, closed)
-    dist, foot = project_points(
-        pts, curve.control_points, curve.weights, curve.knots, 3, closed
-    )
+    dist, foot = project_points(pts, curve.control_points, curve.weights, curve.knots, 3, closed)
     scale = normalise(pts)[2]  # curve.error is in the normalised frame
     np.testing.assert_allclose(dist.mean() / scale, curve.error, rtol=1e-6)
     assert np.sum(np.sign((np.diff(foot) + 0.5) % 1.0 - 0.5 if closed else np.diff(foot))) > 0
@@ -161,3 +159,35 @@ def test_curve_rejects_knots_of_the_wrong_structure():
         Curve(3, np.zeros((5, 2)), np.ones(5), [0, 0, 0, 0.1, 0.5, 1, 1, 1, 1])
     with pytest.raises(ValueError, match=r"knots must be 9 finite numbers"):
         Curve(3, np.zeros((5, 2)), np.ones(5), [0, 0, 0, 0, 1, 1, 1, 1])
+
+
+@given(
+    logits=st.lists(st.floats(-3, 3), min_size=14, max_size=14),
+    n=st.integers(4, 15),
+    k=st.integers(1, 3),
+    seed=st.integers(0, 2**16),
+)
+def test_a_positions_open_knots_end_exactly_at_one_and_project_exactly(logits, n, k, seed):
+    """The widths sum to 1 only to rounding; the host's knot vector still ends exactly at
+    1 (an end of 1 + 2e-16 once left the last span out of the domain the measures sample,
+    and its points were projected onto the wrong span).  Projections then agree with a
+    brute-force sampling of the curve."""
+    from scipy.interpolate import BSpline
+
+    from swarmcurves_jax.layout import Layout, knot_vector
+
+    assume(n > k)
+    space = Layout(n_pad=15, dim=2, rational=False, num_knots=15 - k, closed=False)
+    rng = np.random.default_rng(seed)
+    q = np.concatenate([rng.uniform(-1, 1, 30), logits[: 15 - k]])
+    t = knot_vector(q, k, n, space)
+    check_knots(t, n, k, False)
+    assert np.all(t[n:] == 1.0) and np.all(t[: k + 1] == 0.0)
+    ctrl = q[:30].reshape(15, 2)[:n]
+    points = BSpline(t, ctrl, k)(np.linspace(0, 1, 40)) + rng.normal(0, 0.02, (40, 2))
+    dist, _ = project_points(points, ctrl, np.ones(n), t, k, False)
+    dense = BSpline(t, ctrl, k)(np.linspace(0, 1, 200_001))
+    brute = np.min(np.linalg.norm(points[:, None] - dense[None], axis=2), axis=1)
+    assert np.all(dist <= brute + 1e-12)  # the exact minimum, never above a sampled one
+    gap = np.max(np.linalg.norm(np.diff(dense, axis=0), axis=1))
+    assert np.all(brute - dist <= 0.5 * gap + 1e-12)  # and below it by half a sample gap
