@@ -21,7 +21,7 @@ import numpy as np
 from ._validation import check_bool, check_positive_int
 from .assemble import collect
 from .devices import Placement
-from .launch import launch
+from .launch import COMPILING, launch
 from .options import FitOptions
 from .prepare import group_key, prepare
 from .results import FitResult
@@ -121,7 +121,7 @@ def fit_many(
             if on_result is not None:
                 on_result(i, results[i])
         if bar is not None:
-            bar.set_description("curves", refresh=False)
+            bar.set_description(bar.desc.removesuffix(COMPILING), refresh=False)
             bar.update(len(chosen))
 
     # A pipeline: call c + 1 is built (its least-squares seeds) and queued on the devices
@@ -194,5 +194,4 @@ def _platform(place: Placement) -> str:
 def _progress_bar(total):
     from tqdm.auto import tqdm
 
-    # Until the first bucket is done, its wait is mostly compilation.
-    return tqdm(total=total, desc="curves (compiling)", unit="curve", leave=False)
+    return tqdm(total=total, desc=f"curves{COMPILING}", unit="curve", leave=False)

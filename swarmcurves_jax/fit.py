@@ -22,7 +22,7 @@ import jax
 from ._validation import check_bool
 from .assemble import collect
 from .devices import cpu_devices
-from .launch import launch
+from .launch import COMPILING, launch
 from .options import FitOptions
 from .prepare import bucket_length, default_num_samples, normalise, prepare
 from .results import FitResult
@@ -111,6 +111,5 @@ def fit(
 def _progress_bar(iterations, pairs):
     from tqdm.auto import tqdm
 
-    # The first chunk's wait is mostly compilation (the report renames it once it ends).
-    desc = f"{len(pairs)} swarms: compiling"
+    desc = f"{len(pairs)} swarms{COMPILING}"
     return tqdm(total=iterations, desc=desc, unit="it", leave=False)

@@ -86,6 +86,10 @@ class Launched(NamedTuple):
 #: that has traced compiles (outside Python's lock) as the next one traces.
 TRACING = threading.Lock()
 
+#: A progress bar's label ends with this until its first iterations (or curves) are done:
+#: a first call's wait is mostly compilation.
+COMPILING = ": compiling"
+
 
 def launch(
     preps,
@@ -422,7 +426,7 @@ def _reporter(batch: Batch, opts: FitOptions, callback, bar):
         at = min(at, opts.iterations)
         if bar is not None:
             if bar.n == 0:  # compiled: the bar now counts iterations
-                bar.set_description(f"{len(batch.pairs)} swarms", refresh=False)
+                bar.set_description(bar.desc.removesuffix(COMPILING), refresh=False)
             bar.update(at - bar.n)
             bar.set_postfix_str(_best_per_degree(batch.pairs, best.min(axis=0)))
         if callback is not None:

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import pso
-from .knots import knots_from_widths, make_knots, span_widths
+from .knots import check_knots, knots_from_widths, make_knots, span_widths
 from .span_basis import SpanBasis, free_knot_basis
 
 __all__ = ["Layout", "KNOT_LOGIT_BOUND", "search_boxes", "knot_vector", "geometry"]
@@ -104,13 +104,11 @@ def knot_vector(q, k, n, space) -> np.ndarray:
         return make_knots(n, k, space.closed)
     spans = n if space.closed else n - k
     logits = space.knot_logits(q)[: space.n_pad if space.closed else space.n_pad - k]
-    t = knots_from_widths(span_widths(logits, spans), spans, k, space.closed)[: spans + 2 * k + 1]
-    if not space.closed:
-        # The widths' sum is 1 only to rounding; an end knot of 1 + 2e-16 left the last
-        # span out of the domain [0, 1] that the measures sample (its points were then
-        # projected onto the wrong span: errors up to 45x too large).
-        t[spans + k :] = 1.0
-    return t
+    t = knots_from_widths(span_widths(logits, spans), spans, k, space.closed)
+    # Checked, with the clamped ends set exactly: the widths sum to 1 only to rounding,
+    # and an end knot of 1 + 2e-16 left the last span out of the domain [0, 1] that the
+    # measures sample (its points were projected onto the wrong span: errors 45x too large).
+    return check_knots(t[: spans + 2 * k + 1], n, k, space.closed)
 
 
 def geometry(q, space):
