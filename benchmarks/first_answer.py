@@ -128,8 +128,11 @@ def child(names: list[str], iterations: int) -> list[dict]:
 
 
 def _env(cache_home: Path) -> dict:
+    """A child's environment: the package from this tree, compiled programs kept in
+    ``cache_home`` (through the package's own setting, on any platform), nothing else of
+    JAX's or the package's settings."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "SWARMCURVES_"))}
-    return dict(env, XDG_CACHE_HOME=str(cache_home), PYTHONPATH=str(REPO))
+    return dict(env, SWARMCURVES_CACHE_DIR=str(cache_home / "xla"), PYTHONPATH=str(REPO))
 
 
 def run_child(names, iterations, cache_home) -> list[dict]:
