@@ -2,14 +2,16 @@
 
 XLA:CPU runs one program on all cores, but several independent programs on as many CPU
 devices use them better (:func:`swarmcurves_jax.devices.cpu_devices`), so a lone fit deals
-its swarms into sets of similar cost.  A swarm's result does not depend on the dealing.
+its swarms into sets of similar cost.  A swarm's result does not depend on the dealing:
+each set keeps its degree groups' search samples and spans (:func:`part_groups`), and a
+swarm never runs alone in a group that has several in the call (:func:`widen`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["swarm_costs", "split_swarms", "part_groups"]
+__all__ = ["swarm_costs", "split_swarms", "part_groups", "widen"]
 
 
 def swarm_costs(pairs, groups, closed: bool, columns: int) -> np.ndarray:
@@ -33,36 +35,38 @@ def split_swarms(groups, parts: int, cost: np.ndarray) -> list[np.ndarray]:
     with its own degree groups, so whole groups are dealt first (the costliest to the
     least loaded set); then single swarms move from the most to the least loaded set
     while that set stays below the other: freely into a group it already has, and to
-    start a new group there only 5 % below.
+    start a new group there only 5 % below.  A set's load counts the copy that
+    :func:`widen` adds to a swarm left alone in its group.
     """
     count = min(parts, groups[-1][2])
-    sets, load = [[] for _ in range(count)], np.zeros(count)
+    sets = [[] for _ in range(count)]
     group = np.zeros(groups[-1][2], int)
     for g, (_, i, j, _) in enumerate(groups):
         group[i:j] = g
+    load = lambda s: cost[widen(np.array(sorted(s), int), groups)].sum()  # noqa: E731
     for k, i, j, _ in sorted(groups, key=lambda g: (-cost[g[1]] * (g[2] - g[1]), g[1])):
-        d = int(np.argmin(load))
-        sets[d] += range(i, j)
-        load[d] += cost[i:j].sum()
+        sets[int(np.argmin([load(s) for s in sets]))] += range(i, j)
     while True:
-        top, low = int(np.argmax(load)), int(np.argmin(load))
+        loads = [load(s) for s in sets]
+        top, low = int(np.argmax(loads)), int(np.argmin(loads))
         best = None
         for i in sorted(sets[top], key=lambda i: (-cost[i], i)):
             known = group[i] in group[sets[low]]
-            if load[low] + cost[i] < load[top] * (1.0 if known else 0.95):
+            rest = [x for x in sets[top] if x != i]
+            below = load(sets[low] + [i]) < loads[top] * (1.0 if known else 0.95)
+            if below and load(rest) < loads[top]:
                 best = i
                 break
         if best is None:
             return [np.array(sorted(x)) for x in sets if x]
         sets[top].remove(best)
         sets[low].append(best)
-        load[top] -= cost[best]
-        load[low] += cost[best]
 
 
 def part_groups(groups, chosen: np.ndarray):
-    """:func:`~swarmcurves_jax.prepare.degree_groups` of the swarms ``chosen``, each group keeping the whole
-    call's search samples (so a swarm's result does not depend on the split), and per
+    """:func:`~swarmcurves_jax.prepare.degree_groups` of the swarms ``chosen``, each group
+    keeping the whole call's search samples (so a swarm's result does not depend on the
+    split), and per
     group its index in ``groups`` and the positions of its chosen swarms there."""
     out, within = [], []
     for g, (k, i, j, samples) in enumerate(groups):
@@ -71,3 +75,16 @@ def part_groups(groups, chosen: np.ndarray):
             out.append((k, int(mine[0]), int(mine[-1]) + 1, samples))
             within.append((g, chosen[mine] - i))
     return tuple(out), within
+
+
+def widen(chosen: np.ndarray, groups) -> np.ndarray:
+    """The swarms ``chosen`` (in call order) as a set runs them: a swarm alone in its degree
+    group gets a copy beside it (its results dropped) where the call's group has several.
+    XLA compiles a vmap of one swarm differently (its batch axis removed), and it rounds
+    differently; a vmap of two or more rounds as the whole group does, so a swarm's
+    result does not depend on the dealing."""
+    out = []
+    for _, i, j, _ in groups:
+        mine = chosen[(chosen >= i) & (chosen < j)]
+        out += [*mine, *mine] if len(mine) == 1 and j - i > 1 else list(mine)
+    return np.array(out, int)

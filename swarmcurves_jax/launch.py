@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import compile_cache, pso
-from .dealing import part_groups, split_swarms, swarm_costs
+from .dealing import part_groups, split_swarms, swarm_costs, widen
 from .devices import Placement
 from .layout import Layout, search_boxes
 from .objective import CPU_COMPILER_OPTIONS, stack_bases
@@ -329,12 +329,14 @@ def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, rep
     order = np.argsort(np.concatenate(parts))
 
     def run_part(i):
-        chosen = parts[i]
+        chosen = widen(parts[i], batch.groups)  # sorted, a lone swarm's copy next to it
+        kept = np.unique(chosen, return_index=True)[1]  # the copies' results are dropped
+        keep = lambda tree: jax.tree_util.tree_map(lambda a: a[:, kept], tree)  # noqa: E731
 
         def drawn():  # this part's swarms of the draws (host memory: a CPU device's own)
             return jax.tree_util.tree_map(lambda a: a[:, chosen], jax.device_get(draws.result()))
 
-        say = None if report is None else (lambda at, best: events.put((i, at, best)))
+        say = None if report is None else (lambda at, best: events.put((i, at, best[:, kept])))
         device = Placement(device=devices[i])
         try:
             progress, _ = follow(
@@ -347,7 +349,8 @@ def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, rep
         finally:
             events.put((i, None, None))  # this part is done (or failed)
         history = np.concatenate([np.asarray(h) for h in progress.history], axis=2)
-        return progress._replace(state=jax.device_get(progress.state), history=history, inputs=None)
+        state = keep(jax.device_get(progress.state))
+        return progress._replace(state=state, history=history[:, kept], inputs=None)
 
     merged = lambda *a: np.concatenate(a, axis=1)[:, order]  # noqa: E731
     interrupted = False

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from swarmcurves_jax import fit, fit_many
 from swarmcurves_jax.batch import padding_waste
+from swarmcurves_jax.datasets import random_bspline_points
 from swarmcurves_jax.prepare import bucket_length
 
 OPTS = dict(cps=[4, 6], iterations=60, particles=16)
@@ -184,7 +185,7 @@ def test_fit_split_over_cpu_devices_matches_one_program():
     """With several CPU devices fit deals its swarms over them, one program each, and
     refines in one program: every solution, history, stop and callback equals one
     device's (in the tol case one part stops a chunk before the other)."""
-    from swarmcurves_jax.dealing import split_swarms, swarm_costs
+    from swarmcurves_jax.dealing import split_swarms, swarm_costs, widen
 
     # a polygon costs 1.25 a segment, a spline its samples + 5 + spans (k + 3) D / 5:
     # W1's polygons 11.25, quadratics 32 + 5 + 16 = 53, cubics 28 + 5 + 16.8 = 49.8
@@ -200,8 +201,12 @@ def test_fit_split_over_cpu_devices_matches_one_program():
     # one swarm a device, but two polygons cost less than one spline swarm
     groups = ((1, 0, 3, 8), (2, 3, 6, 12), (3, 6, 9, 12))
     cost = np.r_[np.full(3, 8.0), np.full(6, 22.0)]
-    expected = [[0], [1, 2], *([i] for i in range(3, 9))]
+    # a swarm left alone in its group runs with a copy (widen), so it costs two: a
+    # polygon group shares a set, each spline group splits 1 + 2 at most
+    expected = [[0, 1, 2], [3], [4, 5], [6], [7, 8]]
     assert sorted(s.tolist() for s in split_swarms(groups, 20, cost)) == expected
+    assert widen(np.array([3, 6]), groups).tolist() == [3, 3, 6, 6]
+    assert widen(np.array([0, 4, 5]), ((1, 0, 1, 8), (2, 1, 9, 12))).tolist() == [0, 4, 5]
     split = split_swarms(((3, 0, 7, 28),), 2, np.full(7, 38.0))
     assert [s.tolist() for s in split] == [[3, 4, 5, 6], [0, 1, 2]]
     code = """
@@ -221,6 +226,53 @@ def test_fit_split_over_cpu_devices_matches_one_program():
     assert [at for at, _ in calls] == [50, 100] and lone[1].history.shape[1] == 100
     assert got["calls"] == json.loads(json.dumps(calls))
     _match_across_devices(got, lone)
+
+
+#: The same call on 1, 3 and 4 CPU devices (2: the test above): fit deals its cubics
+#: 2 + 1 + 1 or 1 + 1 + 1 + 1 (each lone swarm with a copy), fit_many splits the curves.
+DEALT = dict(cps=range(4, 8), degrees=3, iterations=60, particles=16, seed=0)
+
+
+def _dealt_sets():
+    """Random cubics of 6 control points, 150 and 190 points."""
+    return [random_bspline_points(6, 3, num_points=n, seed=n)[0] for n in (150, 190)]
+
+
+def test_any_count_of_cpu_devices_gives_the_same_curves():
+    """Every swarm's result depends on its swarm and curve alone, not on how the swarms
+    or curves are dealt over devices: fit and fit_many on 3 and 4 CPU devices equal one
+    device's fit bit for bit."""
+    code = """
+        import json, sys, jax
+        jax.config.update("jax_num_cpu_devices", int(sys.argv[1]))
+        import tests.test_batch as tb
+        from swarmcurves_jax import fit, fit_many
+        from swarmcurves_jax.devices import cpu_devices
+        sets = tb._dealt_sets()
+        lone = [fit(p, **tb.DEALT) for p in sets]
+        many = fit_many(sets, **tb.DEALT) if len(sys.argv) > 2 else []
+        print(json.dumps({"devices": len(cpu_devices()),
+                          "solutions": tb._solutions(lone + many),
+                          "histories": tb._histories(lone + many)}))
+    """
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    runs = {
+        d: subprocess.Popen(
+            [sys.executable, "-c", textwrap.dedent(code), str(d), *(["many"] if d == 3 else [])],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+        for d in (3, 4)
+    }
+    lone = [fit(p, **DEALT) for p in _dealt_sets()]
+    for d, run in runs.items():
+        out, err = run.communicate(timeout=300)
+        assert run.returncode == 0, err[-3000:]
+        got = json.loads(out.splitlines()[-1])
+        assert got["devices"] == d
+        _match_across_devices(got, lone * (2 if d == 3 else 1))
 
 
 def _free_port():
