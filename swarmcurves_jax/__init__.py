@@ -6,6 +6,7 @@ as one jit-compiled JAX program (CPU by default, a GPU when JAX sees one).
 
 from .basis import design_matrix as design_matrix
 from .batch import fit_many as fit_many
+from .batch import fit_stream as fit_stream
 from .curves import SCHEMA_VERSION as SCHEMA_VERSION
 from .curves import Curve as Curve
 from .fit import fit as fit
@@ -31,6 +32,7 @@ __all__ = [
     "design_matrix",
     "fit",
     "fit_many",
+    "fit_stream",
     "make_knots",
     "normalise",
     "periodic_uniform_knots",

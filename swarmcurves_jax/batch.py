@@ -7,13 +7,17 @@ calls of equal size, so it compiles once; inside a call the curves are split ove
 devices (:mod:`swarmcurves_jax.devices`) and each device loops over its share.  Every
 curve runs the very program a lone :func:`swarmcurves_jax.fit` runs, with the same key,
 so ``fit_many(sets, seed=s)[i]`` equals ``fit(sets[i], seed=s)`` exactly.
+:func:`fit_stream` does the same for an iterable read as it goes (a corpus too large to
+hold): it keeps at most one call's curves per bucket waiting, and yields each result as
+its call finishes.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
-from typing import Callable, Sequence
+from typing import Callable, Iterable, Iterator, Sequence
 
 import jax
 import numpy as np
@@ -26,7 +30,7 @@ from .options import FitOptions
 from .prepare import group_key, prepare
 from .results import FitResult
 
-__all__ = ["fit_many", "padding_waste"]
+__all__ = ["fit_many", "fit_stream", "padding_waste"]
 
 
 def fit_many(
@@ -90,12 +94,7 @@ def fit_many(
     seeds = _per_curve(seed, num, "seed")
     if on_result is not None and not callable(on_result):
         raise ValueError(f"on_result must be callable or None, got {on_result!r}")
-    if batch_size is not None:
-        batch_size = check_positive_int(batch_size, "batch_size")
-    place = Placement.over(devices, batch=1)
-    if vmap_curves is None:
-        vmap_curves = 1 if _platform(place) == "cpu" else 16
-    place = place._replace(batch=check_positive_int(vmap_curves, "vmap_curves"))
+    place, per_call = _placement(devices, batch_size, vmap_curves)
     preps = [
         prepare(points, flag, opts, seed_i, f"point_sets[{i}]")
         for i, (points, flag, seed_i) in enumerate(zip(sets, closed_flags, seeds))
@@ -103,42 +102,114 @@ def fit_many(
     groups: dict[tuple, list[int]] = {}
     for i, prep in enumerate(preps):
         groups.setdefault(group_key(prep), []).append(i)
-    per_call = batch_size or 32 * place.multiple
+    calls = (
+        (chosen, [preps[i] for i in chosen], size)
+        for chosen, size in _calls(groups, per_call, place.multiple)
+    )
     results: list[FitResult | None] = [None] * num
-    bar = _progress_bar(num) if opts.progress else None
+    for i, result in _run_calls(calls, opts, place, num if opts.progress else None):
+        results[i] = result
+        if on_result is not None:
+            on_result(i, result)
+    return results
+
+
+def fit_stream(
+    point_sets: Iterable,
+    cps=FitOptions.cps,
+    degrees=FitOptions.degrees,
+    *,
+    closed: bool | Iterable[bool] = False,
+    seed: int | jax.Array | Iterable = 0,
+    devices=None,
+    batch_size: int | None = None,
+    vmap_curves: int | None = None,
+    **options,
+) -> Iterator[tuple[int, FitResult]]:
+    """Fit point sets read from any iterable as it goes, yielding ``(i, result)`` for
+    ``point_sets``'s i-th item as soon as its program call finishes (not in input order).
+
+    For a corpus too large to hold: a point set is read when it is needed, each shape
+    bucket runs once it holds ``batch_size`` curves (the rest at the end), and at most one
+    call's curves per bucket wait, so memory does not grow with the corpus.  Every result
+    equals :func:`fit_many`'s and a lone :func:`~swarmcurves_jax.fit`'s bit for bit on
+    CPUs.  A bucket compiles a second program for its last, smaller call.
+
+    ``closed`` and ``seed``: one value for every curve, or an iterable read alongside
+    ``point_sets`` (a list, or a generator).  The other parameters are :func:`fit_many`'s;
+    ``progress`` shows a bar over the curves done.
+    """
+    opts = FitOptions.from_keywords(dict(options, cps=cps, degrees=degrees), "fit_stream")
+    if isinstance(point_sets, (str, bytes, np.ndarray)) or not isinstance(point_sets, Iterable):
+        raise ValueError(
+            "point_sets must be an iterable of (N, 2) or (N, 3) point arrays, got "
+            f"{type(point_sets).__name__}"
+        )
+    closed_flags, seeds = _each(closed), _each(seed)
+    place, per_call = _placement(devices, batch_size, vmap_curves)
+
+    def calls():
+        waiting: dict[tuple, list] = {}
+        for i, points in enumerate(point_sets):
+            flag = check_bool(_next(closed_flags, "closed", i), f"closed[{i}]")
+            prep = prepare(points, flag, opts, _next(seeds, "seed", i), f"point_sets[{i}]")
+            members = waiting.setdefault(group_key(prep), [])
+            members.append((i, prep))
+            if len(members) == per_call:
+                yield [i for i, _ in members], [p for _, p in members], per_call
+                members.clear()
+        for members in waiting.values():
+            if members:
+                size = len(members) + (-len(members) % place.multiple)
+                yield [i for i, _ in members], [p for _, p in members], size
+
+    yield from _run_calls(calls(), opts, place, None)
+
+
+def _placement(devices, batch_size, vmap_curves) -> tuple[Placement, int]:
+    """Where a batch runs and its curves per program call."""
+    if batch_size is not None:
+        batch_size = check_positive_int(batch_size, "batch_size")
+    place = Placement.over(devices, batch=1)
+    if vmap_curves is None:
+        vmap_curves = 1 if _platform(place) == "cpu" else 16
+    place = place._replace(batch=check_positive_int(vmap_curves, "vmap_curves"))
+    per_call = batch_size or 32 * place.multiple
+    return place, per_call + (-per_call % place.multiple)
+
+
+def _run_calls(calls, opts: FitOptions, place: Placement, total):
+    """Launch each ``(indices, preps, size)`` call and yield its ``(index, result)``
+    pairs, collecting a call on the host (its true projections) while the next one runs
+    on the devices.  ``total``: the curves of a progress bar (None: the count is open)."""
+    bar = _progress_bar(total) if opts.progress else None
 
     def finish(chosen, launched, call):
-        """Collect a call's results (host projections) while the next call runs."""
-        for i, result in zip(chosen, collect(launched)):
+        for i, prep, result in zip(chosen, launched.preps, collect(launched)):
             info = {
                 "call": call,
                 "curves": len(chosen),
-                "bucket": len(preps[i].data),
-                "points": int(preps[i].mask.sum()),
+                "bucket": len(prep.data),
+                "points": int(prep.mask.sum()),
                 "devices": place.multiple,
             }
-            results[i] = dataclasses.replace(result, batch=info)
-            if on_result is not None:
-                on_result(i, results[i])
+            yield i, dataclasses.replace(result, batch=info)
         if bar is not None:
             bar.set_description(bar.desc.removesuffix(COMPILING), refresh=False)
             bar.update(len(chosen))
 
-    # A pipeline: call c + 1 is built (its least-squares seeds) and queued on the devices
-    # before the host collects call c, so host and device work overlap.
     previous = None
     try:
-        for call, (chosen, size) in enumerate(_calls(groups, per_call, place.multiple)):
-            curves = [preps[i] for i in chosen]
+        for call, (chosen, curves, size) in enumerate(calls):
             launched = launch(curves, opts, place=place, size=size)
             if previous is not None:
-                finish(*previous)
+                yield from finish(*previous)
             previous = (chosen, launched, call)
-        finish(*previous)
+        if previous is not None:
+            yield from finish(*previous)
     finally:
         if bar is not None:
             bar.close()
-    return results
 
 
 def _calls(groups: dict, per_call: int, multiple: int):
@@ -185,6 +256,22 @@ def _per_curve(value, num: int, name: str) -> list:
             )
         return list(value)
     return [value] * num
+
+
+def _each(value) -> Iterator:
+    """Per-curve values: an iterable's items (a list, an array, a generator) in turn, or
+    one value (a bool, an int, a JAX key) for every curve."""
+    one = isinstance(value, (str, bytes, jax.Array)) or not isinstance(value, Iterable)
+    one = one or (isinstance(value, np.ndarray) and value.ndim == 0)
+    return itertools.repeat(value) if one else iter(value)
+
+
+def _next(values: Iterator, name: str, i: int):
+    """Point set ``i``'s value from an :func:`_each` iterator."""
+    try:
+        return next(values)
+    except StopIteration:
+        raise ValueError(f"{name} ran out at point set {i}: give one value per point set") from None
 
 
 def _platform(place: Placement) -> str:

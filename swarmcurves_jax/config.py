@@ -119,6 +119,12 @@ SCHEMA = {
         "float>0?",
         "tolerance for 'sparsest' in the points' units instead (largest deviation)",
     ),
+    "batch_size": (
+        None,
+        "int>=1?",
+        "a batch's curves per program call (default: 32 per device); results do not depend "
+        "on it",
+    ),
     "out": (None, "str?", "output folder (nothing is written without one)"),
     "cache_dir": (
         None,
@@ -246,6 +252,7 @@ def load_config(args) -> dict:
         "particles",
         "tol",
         "seed",
+        "batch_size",
         "out",
     ):
         value = getattr(args, key)

@@ -1,5 +1,8 @@
 """The command line's inputs: point files, multi-curve files, folders, globs and the
 built-in datasets, each read into ``(points, closed, label)``; errors name the file and line.
+
+A batch's curves are listed first (:func:`list_sources`: labels and readers, no points) and
+read one at a time as the run needs them, so a corpus is never held whole.
 """
 
 from __future__ import annotations
@@ -7,12 +10,30 @@ from __future__ import annotations
 import fnmatch
 import glob
 from pathlib import Path
+from typing import Callable, NamedTuple
 
 import numpy as np
 
 from .config import ConfigError
 
-__all__ = ["read_points", "load_input", "load_inputs", "is_batch", "read_point_arrays"]
+__all__ = [
+    "Source",
+    "read_points",
+    "load_input",
+    "load_inputs",
+    "list_sources",
+    "is_batch",
+    "read_point_arrays",
+]
+
+
+class Source(NamedTuple):
+    """One curve of an input: its label, whether it is closed, and ``read()`` for its
+    points (read when called, checked; a bad file raises :class:`ConfigError`)."""
+
+    label: str
+    closed: bool
+    read: Callable[[], np.ndarray]
 
 
 def read_points(path: Path) -> np.ndarray:
@@ -77,9 +98,15 @@ def is_batch(name: str) -> bool:
 
 
 def load_inputs(cfg) -> list[tuple[np.ndarray, bool, str]]:
-    """``(points, closed, label)`` of every curve the config's ``input`` names.
+    """``(points, closed, label)`` of every curve the config's ``input`` names."""
+    return [(src.read(), src.closed, src.label) for src in list_sources(cfg)]
 
-    Files of a folder or glob are read in sorted order; their ``closed`` is the config's
+
+def list_sources(cfg) -> list[Source]:
+    """Every curve the config's ``input`` names, as a :class:`Source` (nothing read yet but
+    a multi-curve file's index).
+
+    Files of a folder or glob are taken in sorted order; their ``closed`` is the config's
     (default open), an outline's its own.  Labels are file stems (names, if stems clash),
     an .npz's array names, or outline names."""
     from .datasets import BUILTIN_NAMES, builtin, outlines_path, read_outlines
@@ -88,7 +115,7 @@ def load_inputs(cfg) -> list[tuple[np.ndarray, bool, str]]:
     closed = bool(cfg["closed"])
     if name in BUILTIN_NAMES:
         pts, own = builtin(name)
-        return [(pts, own, name)]
+        return [Source(name, own, lambda: pts)]
     if name.startswith("outline:"):
         pattern = name.split(":", 1)[1]
         try:
@@ -101,14 +128,15 @@ def load_inputs(cfg) -> list[tuple[np.ndarray, bool, str]]:
                 f"input: no outline '{pattern}' in {outlines_path(cfg['data_dir'])}; "
                 f"have {', '.join(outlines)}"
             )
-        batch = is_batch(name)
+        label = (lambda c: c) if is_batch(name) else (lambda c: name)
         return [
-            (outlines[c]["points"], outlines[c]["closed"], c if batch else name) for c in chosen
+            Source(label(c), outlines[c]["closed"], lambda c=c: outlines[c]["points"])
+            for c in chosen
         ]
     if name.endswith(".npz"):
-        return [(pts, closed, label) for label, pts in read_point_arrays(Path(name))]
+        return _npz_sources(Path(name), closed)
     if not is_batch(name):
-        return [(read_points(Path(name)), closed, name)]
+        return [Source(name, closed, lambda: read_points(Path(name)))]
     if Path(name).is_dir():
         files = sorted(f for f in Path(name).iterdir() if f.suffix in POINT_SUFFIXES)
         where = f"folder '{name}' holds no point files ({', '.join(POINT_SUFFIXES)})"
@@ -119,21 +147,38 @@ def load_inputs(cfg) -> list[tuple[np.ndarray, bool, str]]:
         raise ConfigError(f"input: {where}")
     stems = [f.stem for f in files]
     labels = stems if len(set(stems)) == len(stems) else [f.name for f in files]
-    return [(read_points(f), closed, label) for f, label in zip(files, labels)]
+    return [Source(label, closed, lambda f=f: read_points(f)) for f, label in zip(files, labels)]
+
+
+def _npz_sources(path: Path, closed: bool) -> list[Source]:
+    """A multi-curve .npz's arrays as sources, read from the open file one at a time."""
+    npz = _open_npz(path)
+
+    def read(key):
+        try:
+            arr = np.asarray(npz[key])
+        except Exception as exc:
+            raise ConfigError(f"input: cannot read '{path}['{key}']': {exc}") from None
+        return _checked_array(arr, f"{path}['{key}']")
+
+    return [Source(key, closed, lambda key=key: read(key)) for key in npz.files]
+
+
+def _open_npz(path: Path):
+    if not path.is_file():
+        raise ConfigError(f"input: no such file '{path}'")
+    try:
+        npz = np.load(path, allow_pickle=False)
+    except Exception as exc:
+        raise ConfigError(f"input: cannot read '{path}' as .npz: {exc}") from None
+    if not npz.files:
+        raise ConfigError(f"input: '{path}' holds no arrays")
+    return npz
 
 
 def read_point_arrays(path: Path) -> list[tuple[str, np.ndarray]]:
     """``(name, points)`` of every array of a multi-curve .npz, in the file's order."""
-    if not path.is_file():
-        raise ConfigError(f"input: no such file '{path}'")
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = [(key, np.asarray(npz[key])) for key in npz.files]
-    except Exception as exc:
-        raise ConfigError(f"input: cannot read '{path}' as .npz: {exc}") from None
-    if not arrays:
-        raise ConfigError(f"input: '{path}' holds no arrays")
-    return [(key, _checked_array(arr, f"{path}['{key}']")) for key, arr in arrays]
+    return [(src.label, src.read()) for src in _npz_sources(path, False)]
 
 
 def _checked_array(arr: np.ndarray, where: str) -> np.ndarray:

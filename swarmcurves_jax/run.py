@@ -5,7 +5,9 @@ Runs one fitting job: reads points (a file or a built-in dataset), fits every re
 sparsest-within-tolerance marked, and writes solutions, figures and CAD exports into the
 output folder.  An ``input`` that names many curves (a folder, a glob, an ``.npz`` of
 arrays, or ``outline:*``) is fitted as one batch (:func:`swarmcurves_jax.fit_many`): one
-sub-folder of results per curve and a ``summary.csv``.  With no config it fits the
+sub-folder of results per curve and a ``summary.csv``; the curves are read as the run
+needs them, and each curve's files are complete once its ``summary.json`` is written, so
+``--resume`` goes on from an interrupted (even killed) run.  With no config it fits the
 built-in example (the paper's f4 curve) and only prints.  Bad configs and bad files stop
 the run before any work with exit code 2 and one line that names the key.  Ctrl-C (or
 SIGTERM) stops the swarm cleanly and still writes the best solutions found so far (in a
@@ -16,17 +18,19 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import re
 import signal
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .compile_cache import use_cache
 from .config import EXPORT_FILES, SCHEMA, ConfigError, fit_options, load_config
-from .inputs import is_batch, load_inputs
+from .inputs import Source, is_batch, list_sources
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -49,8 +53,15 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--particles", type=int)
     ap.add_argument("--tol", type=float)
     ap.add_argument("--seed", type=int)
+    ap.add_argument("--batch-size", dest="batch_size", type=int, help="overrides 'batch_size'")
     ap.add_argument("--out", help="output folder")
     ap.add_argument("--force", action="store_true", help="replace an earlier run's files in --out")
+    ap.add_argument(
+        "--resume",
+        action="store_true",
+        help="a batch: keep the curves an earlier run of the same config completed in --out, "
+        "fit the others",
+    )
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
 
@@ -90,10 +101,10 @@ def format_table(result, sparsest) -> str:
 
 
 def write_outputs(cfg, result, points, out: Path) -> list[Path]:
+    import jax
+
     from . import __version__
     from .export import write_dxf, write_json, write_npz, write_svg
-
-    import jax
 
     out.mkdir(parents=True, exist_ok=True)
     curves = result.solutions
@@ -167,27 +178,25 @@ def main(argv=None) -> int:
         cfg = load_config(args)
         if cfg["cache_dir"] is not None:
             use_cache(cfg["cache_dir"])
-        curves = load_inputs(cfg)
+        sources = list_sources(cfg)
         if cfg["closed"] is not None:
-            curves = [(pts, cfg["closed"], label) for pts, _, label in curves]
+            sources = [src._replace(closed=cfg["closed"]) for src in sources]
         out = Path(cfg["out"]) if cfg["out"] else None
-        pairs = [(k, n) for k in sorted(cfg["degrees"]) for n in sorted(cfg["cps"])]
         batch = is_batch(cfg["input"])
-        if out is not None and not args.force:
-            planned = planned_files(cfg, pairs)
-            if batch:
-                planned = [SUMMARY] + [f"{slug(c[2])}/{f}" for c in curves for f in planned]
-            clash = [f for f in planned if (out / f).exists()]
-            if clash:
-                raise ConfigError(
-                    f"out: '{out}' already holds {', '.join(clash[:3])} from an earlier "
-                    "run; pass --force to replace, or choose another folder"
-                )
+        if args.force and args.resume:
+            raise ConfigError("--force replaces an earlier run, --resume keeps it: give one")
+        if args.resume and not (batch and out is not None):
+            raise ConfigError("--resume: applies to a batch input (many curves) with an 'out'")
         if batch:
-            return run_batch(cfg, curves, out, fit_options(cfg, not args.quiet))
+            options = fit_options(cfg, not args.quiet)
+            return run_batch(cfg, sources, out, options, resume=args.resume, force=args.force)
+        if out is not None and not args.force:
+            pairs = [(k, n) for k in sorted(cfg["degrees"]) for n in sorted(cfg["cps"])]
+            _refuse_clash(out, planned_files(cfg, pairs))
         from . import fit
 
-        ((points, closed, label),) = curves
+        ((label, closed, read),) = sources
+        points = read()
         previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
         try:
             result = fit(points, closed=closed, **fit_options(cfg, not args.quiet))
@@ -278,66 +287,167 @@ def summary_row(cfg, label, closed, result) -> dict:
     }
 
 
-def run_batch(cfg, curves, out: Path | None, options: dict) -> int:
-    """Fit every curve as one batch; write each curve's results as soon as it is done,
-    then ``summary.csv`` (also after Ctrl-C, for the curves finished by then)."""
-    from . import fit_many
-    from .batch import padding_waste
+#: A batch curve's files are complete once this file (its summary row) is in its folder.
+DONE = "summary.json"
+#: The config of a batch run with an ``out``, which ``--resume`` must match.
+RUN_CONFIG = "run.json"
+#: Above this many curves a batch prints its totals only (the rows are in summary.csv).
+TABLE_ROWS = 100
 
-    labels = [label for _, _, label in curves]
+
+def run_batch(cfg, sources: list[Source], out: Path | None, options: dict, *, resume, force):
+    """Fit every curve as a stream: read each when its bucket needs it, write its files
+    as soon as it is done (its :data:`DONE` last), then ``summary.csv`` (also after
+    Ctrl-C, for the curves finished by then).  ``resume`` keeps the curves an earlier run
+    completed; every result equals an uninterrupted run's."""
+    from . import fit_stream
+
+    labels = [src.label for src in sources]
     folders = [slug(label) for label in labels]
     dup = sorted({f for f in folders if folders.count(f) > 1})
     if dup:
         raise ConfigError(f"input: curves {', '.join(dup)} would share a result folder")
-    rows: dict[int, dict] = {}
-    results = {}
-
-    def done(i, result):
-        results[i] = result
-        rows[i] = summary_row(cfg, labels[i], curves[i][1], result)
-        if out is not None:
-            write_outputs(cfg, result, np.asarray(result.points), out / folders[i])
-
-    previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
-    interrupted, start = False, time.perf_counter()
+    rows = {} if out is None else _earlier_rows(cfg, out, folders, resume=resume, force=force)
+    todo = [i for i in range(len(sources)) if i not in rows]
+    relabel = lambda exc: ValueError(  # noqa: E731  name a curve as the user knows it
+        re.sub(r"point_sets\[(\d+)\]", lambda m: f"'{labels[todo[int(m[1])]]}'", str(exc))
+    )
     try:
-        fit_many(
-            [pts for pts, _, _ in curves],
-            closed=[c for _, c, _ in curves],
-            on_result=done,
-            **options,
-        )
+        _check_points([sources[i] for i in todo], options)
+    except ValueError as exc:
+        raise relabel(exc) from None
+    if out is not None:
+        _begin_out(cfg, out, folders, rows)
+    stream = fit_stream(
+        (sources[i].read() for i in todo),
+        closed=[sources[i].closed for i in todo],
+        batch_size=cfg["batch_size"],
+        **options,
+    )
+    previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
+    interrupted, start, slots, real = False, time.perf_counter(), 0, 0
+    try:
+        for j, result in stream:
+            i = todo[j]
+            rows[i] = summary_row(cfg, labels[i], sources[i].closed, result)
+            slots, real = slots + result.batch["bucket"], real + result.batch["points"]
+            if out is not None:
+                write_outputs(cfg, result, np.asarray(result.points), out / folders[i])
+                _write_json(out / folders[i] / DONE, rows[i])
     except KeyboardInterrupt:
         interrupted = True
-    except ValueError as exc:  # name the curve as the user knows it, not by its index
-        message = re.sub(r"point_sets\[(\d+)\]", lambda m: f"'{labels[int(m[1])]}'", str(exc))
-        raise ValueError(message) from None
+    except ValueError as exc:
+        raise relabel(exc) from None
     finally:
         signal.signal(signal.SIGTERM, previous)
     order = sorted(rows)
-    table = [[str(rows[i][c]) for c in SUMMARY_COLUMNS[:-2]] for i in order]
-    heads = list(SUMMARY_COLUMNS[:-2])
-    widths = [max([len(h)] + [len(r[j]) for r in table]) for j, h in enumerate(heads)]
-    for line in [heads] + table:
-        print("  ".join(cell.rjust(w) for cell, w in zip(line, widths)))
-    if results:
-        waste = padding_waste([results[i] for i in order])
-        print(
-            f"{len(order)} of {len(curves)} curves in {time.perf_counter() - start:.1f} s; "
-            f"padding: {100 * waste:.1f} % of the fitness's point slots"
-        )
+    _print_rows([rows[i] for i in order])
+    kept = len(sources) - len(todo)
+    line = f"{len(order)} of {len(sources)} curves in {time.perf_counter() - start:.1f} s"
+    if kept:
+        line += f" ({kept} kept from the earlier run)"
+    if slots:
+        line += f"; padding: {100 * (1 - real / slots):.1f} % of the fitness's point slots"
+    print(line)
     if interrupted:
-        print(f"interrupted: {len(order)} of {len(curves)} curves finished", file=sys.stderr)
+        print(f"interrupted: {len(order)} of {len(sources)} curves finished", file=sys.stderr)
     if out is not None and rows:
         from .export import atomic_write
 
-        out.mkdir(parents=True, exist_ok=True)
         with atomic_write(out / SUMMARY, "w") as fh:
             writer = csv.DictWriter(fh, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
             writer.writeheader()
             writer.writerows(rows[i] for i in order)
         print(f"wrote {out / SUMMARY} and {len(order)} result folders")
-    return 130 if interrupted and not rows else 0
+    return 130 if interrupted and len(order) == kept else 0
+
+
+def _earlier_rows(cfg, out: Path, folders, *, resume: bool, force: bool) -> dict[int, dict]:
+    """The summary rows of the curves an earlier run in ``out`` completed, to keep
+    (``resume``: its config must be this one's); without ``resume`` or ``force`` an
+    earlier run's files are refused.  Reads only."""
+    if resume and (out / RUN_CONFIG).is_file():
+        old = json.loads((out / RUN_CONFIG).read_text(encoding="utf-8"))
+        new = _run_record(cfg)
+        changed = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+        if changed:
+            raise ConfigError(
+                f"--resume: the run in '{out}' used other values of {', '.join(changed)}; "
+                "resume with its config, or pass --force to start again"
+            )
+    if not resume and not force:
+        pairs = [(k, n) for k in sorted(cfg["degrees"]) for n in sorted(cfg["cps"])]
+        each = [*planned_files(cfg, pairs), DONE]
+        planned = [f"{folder}/{name}" for folder in folders for name in each]
+        _refuse_clash(out, [SUMMARY, RUN_CONFIG, *planned])
+    done = [(i, out / folder / DONE) for i, folder in enumerate(folders)]
+    return {
+        i: json.loads(path.read_text(encoding="utf-8"))
+        for i, path in done
+        if resume and path.is_file()
+    }
+
+
+def _begin_out(cfg, out: Path, folders, kept: dict) -> None:
+    """Record the run's config in ``out`` and clear what the curves to fit had there: an
+    earlier run's completion marks (with ``--force``, so a later ``--resume`` never keeps
+    a curve this run has not written), a killed run's unfinished writes, the summary."""
+    for i, folder in enumerate(folders):
+        if i not in kept:
+            (out / folder / DONE).unlink(missing_ok=True)
+            for part in (out / folder).glob(".*.part"):
+                part.unlink()
+    if not kept:
+        (out / SUMMARY).unlink(missing_ok=True)
+    _write_json(out / RUN_CONFIG, _run_record(cfg))
+
+
+def _run_record(cfg) -> dict:
+    """What a resumed run must share with the run it resumes: the config but its folders."""
+    return json.loads(json.dumps({k: v for k, v in cfg.items() if k not in ("out", "cache_dir")}))
+
+
+def _refuse_clash(out: Path, planned) -> None:
+    clash = [f for f in planned if (out / f).exists()]
+    if clash:
+        raise ConfigError(
+            f"out: '{out}' already holds {', '.join(clash[:3])} from an earlier run; pass "
+            "--force to replace, --resume to go on with a batch, or choose another folder"
+        )
+
+
+def _check_points(sources: list[Source], options: dict) -> None:
+    """Read and check every curve before any work (a bad file or a curve too short for
+    the counts stops the run at once), keeping none of them: the run reads each again
+    when its bucket needs it."""
+    from .options import FitOptions
+    from .prepare import prepare
+
+    keywords = {k: v for k, v in options.items() if k != "seed"}
+    opts = FitOptions.from_keywords(keywords, "fit_many")
+    with warnings.catch_warnings():  # the run itself warns, once
+        warnings.simplefilter("ignore")
+        for i, src in enumerate(sources):
+            prepare(src.read(), src.closed, opts, options["seed"], f"point_sets[{i}]")
+
+
+def _write_json(path: Path, doc) -> None:
+    from .export import atomic_write
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path) as fh:
+        json.dump(doc, fh, indent=1)
+
+
+def _print_rows(rows: list[dict]) -> None:
+    """The summary table on the terminal (up to :data:`TABLE_ROWS` curves)."""
+    if not rows or len(rows) > TABLE_ROWS:
+        return
+    heads = list(SUMMARY_COLUMNS[:-2])
+    table = [[str(row[c]) for c in heads] for row in rows]
+    widths = [max([len(h)] + [len(r[j]) for r in table]) for j, h in enumerate(heads)]
+    for line in [heads] + table:
+        print("  ".join(cell.rjust(w) for cell, w in zip(line, widths)))
 
 
 if __name__ == "__main__":

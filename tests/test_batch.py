@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from swarmcurves_jax import fit, fit_many
+from swarmcurves_jax import fit, fit_many, fit_stream
 from swarmcurves_jax.batch import padding_waste
 from swarmcurves_jax.datasets import random_bspline_points
 from swarmcurves_jax.prepare import bucket_length
@@ -78,6 +78,33 @@ def test_batched_equals_one_by_one_bit_for_bit(lone):
     calls = [r.batch["call"] for r in many]
     assert calls[1] == calls[3] and len(set(calls)) == 5
     assert padding_waste(many) == pytest.approx(1 - 434 / 464)
+
+
+def test_a_stream_equals_one_by_one_bit_for_bit(lone):
+    """fit_stream reads a generator as it goes: a bucket runs once it holds batch_size
+    curves (the rest at the end), and a call's results come while the next call runs;
+    every result is the lone fit's."""
+    stream = fit_stream(iter(_sets()), closed=iter(CLOSED), seed=SEEDS, batch_size=2, **OPTS)
+    got = dict(stream)
+    assert sorted(got) == list(range(6))
+    for i, a in enumerate(lone):
+        _same(a, got[i])
+    # the open 2-D curves 1 and 3 share a bucket: the one full call; the others end it
+    assert got[1].batch["call"] == got[3].batch["call"] == 0
+    read = []
+
+    def same_bucket():  # curves 1 and 3 in turn: calls of two at 2, 4 and 6 read
+        for i in range(6):
+            read.append(i)
+            yield _sets()[1 if i % 2 == 0 else 3]
+
+    stream = fit_stream(same_bucket(), seed=[1, 3] * 3, batch_size=2, **OPTS)
+    i, first = next(stream)
+    assert read == [0, 1, 2, 3] and i == 0  # call 0 collected once call 1 runs
+    _same(lone[1], first)
+    for i, result in stream:
+        _same(lone[1 if i % 2 == 0 else 3], result)
+    assert read == list(range(6)) and i == 5
 
 
 def test_one_compiled_program_per_bucket(compiles_during):
@@ -246,7 +273,7 @@ def test_any_count_of_cpu_devices_gives_the_same_curves():
         import json, sys, jax
         jax.config.update("jax_num_cpu_devices", int(sys.argv[1]))
         import tests.test_batch as tb
-        from swarmcurves_jax import fit, fit_many
+        from swarmcurves_jax import fit, fit_many, fit_stream
         from swarmcurves_jax.devices import cpu_devices
         sets = tb._dealt_sets()
         lone = [fit(p, **tb.DEALT) for p in sets]
@@ -355,6 +382,15 @@ def test_bucket_lengths_bound_the_padding(n):
         (lambda: fit_many([np.random.rand(30, 2)], vmap_curves=0), "vmap_curves must be"),
         (lambda: fit_many([np.random.rand(30, 2)], particle=3), "particle"),
         (lambda: fit_many([np.random.rand(30, 2)], devices=[]), "devices must not be empty"),
+        (lambda: list(fit_stream("a.csv")), "point_sets must be an iterable of (N, 2)"),
+        (
+            lambda: list(fit_stream([np.random.rand(30, 2)] * 2, cps=4, closed=[True])),
+            "closed ran out at point set 1: give one value per point set",
+        ),
+        (
+            lambda: list(fit_stream(iter([np.random.rand(30, 2), np.random.rand(3, 2)]), cps=4)),
+            "point_sets[1]: 3 points are too few for 4 control points",
+        ),
     ],
 )
 def test_bad_input_names_the_argument(call, message):

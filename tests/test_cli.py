@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 import yaml
 
+from swarmcurves_jax.config import ConfigError, check_config
 from swarmcurves_jax.datasets import random_bspline_points
 from swarmcurves_jax.export import read_solutions
-from swarmcurves_jax.config import ConfigError, check_config
 from swarmcurves_jax.run import main
 
 
@@ -264,7 +264,8 @@ def test_batch_folder_writes_a_result_per_curve_and_a_summary(tmp_path, capsys):
     glob_out = tmp_path / "g"
     pattern = str(tmp_path / "scans" / "*.csv")
     assert main(["--input", pattern, *BATCH_ARGS, "--out", str(glob_out)]) == 0
-    assert sorted(p.name for p in glob_out.iterdir()) == ["arc", "summary.csv"]
+    assert sorted(p.name for p in glob_out.iterdir()) == ["arc", "run.json", "summary.csv"]
+    assert json.loads((glob_out / "arc" / "summary.json").read_text())["input"] == "arc"
 
 
 def test_batch_from_one_npz_and_from_an_outline_pattern(tmp_path, capsys):
@@ -288,6 +289,72 @@ def test_batch_from_one_npz_and_from_an_outline_pattern(tmp_path, capsys):
     with open(tmp_path / "o" / "summary.csv") as fh:
         rows = {r["input"]: r for r in csv.DictReader(fh)}
     assert rows["ring"]["closed"] == "True" and rows["rim"]["closed"] == "False"
+
+
+def _files(out):
+    """Every result file of a batch folder: its bytes, and its time for the curve files."""
+    return {
+        str(p.relative_to(out)): (p.read_bytes(), p.stat().st_mtime_ns)
+        for p in sorted(out.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_a_killed_batch_resumes_to_the_uninterrupted_result(tmp_path):
+    """SIGKILL a batch part way, resume it: the curves done before the kill are kept
+    untouched (not fitted twice), the others fitted, and every result equals an
+    uninterrupted run's."""
+    s = np.linspace(0, 1, 50)
+    curves = {f"c{i:02d}": np.c_[s, np.sin((2 + i / 8) * s)] for i in range(32)}
+    np.savez(tmp_path / "set.npz", **curves)
+    (tmp_path / "job.yaml").write_text("figures: []\nexports: [json, npz]\n")
+    args = [str(tmp_path / "job.yaml"), "--input", str(tmp_path / "set.npz"), *BATCH_ARGS]
+    args += ["--batch-size", "2"]
+    whole, part = tmp_path / "whole", tmp_path / "part"
+    assert main([*args, "--out", str(whole)]) == 0
+    start = "import runpy; runpy.run_module('swarmcurves_jax.run', run_name='__main__')"
+    with subprocess.Popen(
+        [sys.executable, "-c", start, *args, "--out", str(part)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    ) as proc:
+        deadline = time.monotonic() + 200
+        while len(list(part.glob("*/summary.json"))) < 8 and time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
+            time.sleep(0.02)
+        proc.kill()
+    done = {p.parent.name for p in part.glob("*/summary.json")}
+    assert 8 <= len(done) < 32 and not (part / "summary.csv").exists()
+    before = _files(part)
+    proc = run(*args, "--out", str(part), "--resume", "--force")
+    assert proc.returncode == 2 and "give one" in proc.stderr
+    proc = run(*args, "--out", str(part), "--resume", "--iterations", "31")
+    assert proc.returncode == 2 and "other values of iterations" in proc.stderr
+    proc = run(*args, "--out", str(part), "--resume")
+    assert proc.returncode == 0, proc.stderr
+    assert "32 of 32 curves in" in proc.stdout
+    assert f"({len(done)} kept from the earlier run)" in proc.stdout
+    after = _files(part)
+    kept = [f for f in before if f.split("/")[0] in done]
+    assert kept and all(after[f] == before[f] for f in kept)  # untouched: not refitted
+    ours, theirs = _files(whole), after
+    assert sorted(ours) == sorted(theirs)  # no unfinished writes (.part files) left
+    for name in ours:
+        if name.endswith(".npz"):
+            with np.load(whole / name) as a, np.load(part / name) as b:
+                assert all(np.array_equal(a[k], b[k]) for k in a.files), name
+        elif name.endswith("solutions.json"):
+            a, b = (json.loads((out / name).read_text()) for out in (whole, part))
+            for doc in (a, b):  # the run's time and folder differ, not the curves
+                assert doc.pop("wall_time") > 0 and doc["config"].pop("out")
+            assert a == b, name
+    rows = [
+        list(csv.DictReader((out / "summary.csv").read_text().splitlines()))
+        for out in (whole, part)
+    ]
+    for row in rows[0] + rows[1]:
+        row.pop("call")  # which program call ran a curve depends on the run
+    assert rows[0] == rows[1]
 
 
 def test_bad_batch_inputs_exit_2_naming_the_file(tmp_path):
