@@ -11,10 +11,10 @@ from .curves import SCHEMA_VERSION as SCHEMA_VERSION
 from .curves import Curve as Curve
 from .fit import fit as fit
 from .fit import normalise as normalise
-from .options import FitOptions as FitOptions
 from .knots import clamped_uniform_knots as clamped_uniform_knots
 from .knots import make_knots as make_knots
 from .knots import periodic_uniform_knots as periodic_uniform_knots
+from .options import FitOptions as FitOptions
 from .pso import PSOParams as PSOParams
 from .pso import default_params as default_params
 from .results import FitResult as FitResult

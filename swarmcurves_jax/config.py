@@ -125,6 +125,12 @@ SCHEMA = {
         "a batch's curves per program call (default: 32 per device); results do not depend "
         "on it",
     ),
+    "scheduler": (
+        None,
+        "str?",
+        "a Dask scheduler's address ('tcp://host:8786'): fit a batch on its workers "
+        "(needs the dask extra; docs/many_curves.md)",
+    ),
     "out": (None, "str?", "output folder (nothing is written without one)"),
     "cache_dir": (
         None,
@@ -253,6 +259,7 @@ def load_config(args) -> dict:
         "tol",
         "seed",
         "batch_size",
+        "scheduler",
         "out",
     ):
         value = getattr(args, key)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from .span_basis import PRECISION, SpanBasis, homogeneous, curve_samples
+from .span_basis import PRECISION, SpanBasis, curve_samples, homogeneous
 
 __all__ = [
     "nearest_sample",

@@ -130,8 +130,8 @@ def _valid_knots(t, n, k, closed) -> bool:
 def to_geomdl(curve):
     """A ``geomdl`` curve (``NURBS.Curve`` if rational, else ``BSpline.Curve``) in clamped form."""
     try:
-        from geomdl import BSpline as GBSpline
         from geomdl import NURBS
+        from geomdl import BSpline as GBSpline
     except ImportError:
         raise ImportError("to_geomdl needs geomdl: pip install geomdl") from None
     t, ctrl, w = clamped_form(curve)

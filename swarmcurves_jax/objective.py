@@ -140,18 +140,22 @@ def masked_mean(distances, mask, count, parts: int = 1):
     return jnp.dot(total, jnp.ones_like(total), precision=PRECISION) * (1.0 / count)
 
 
-def over_curves(fn, per_curve, shared, mesh, batch):
+def over_curves(fn, per_curve, shared, mesh, batch, opaque=False):
     """``fn(shared, *one_curve)`` for every curve along the leading axis of ``per_curve``.
 
     A loop (``lax.map``), ``batch`` curves vmapped per trip: with ``batch`` 1 every curve
     runs exactly the program a lone fit runs, so results do not depend on the batch (on
     XLA:CPU a vmapped curve axis also makes the work 10-70 % slower).  With a ``mesh`` the
     curves are split over its devices by ``shard_map``, each looping over its own share.
+    ``opaque``: one curve at a time through :func:`_opaque_map`, so that a lone curve runs
+    the very loop body a batch's curves run.
     """
 
     def local(per_curve, shared):
         size = jax.tree_util.tree_leaves(per_curve)[0].shape[0]
         step = min(batch, size)
+        if opaque and step == 1:
+            return _opaque_map(lambda c: fn(shared, *c), per_curve, size)
         return jax.lax.map(
             lambda c: fn(shared, *c), per_curve, batch_size=step if step > 1 else None
         )
@@ -163,6 +167,27 @@ def over_curves(fn, per_curve, shared, mesh, batch):
     # checks (which would want every replicated loop carry cast) are off.
     split = jax.shard_map(local, mesh=mesh, in_specs=(spec, P()), out_specs=spec, check_vma=False)
     return split(per_curve, shared)
+
+
+def _opaque_map(fn, xs, size: int):
+    """``lax.map(fn, xs)`` whose loop XLA cannot see the length of, over arrays of at
+    least two rows (one curve: a copy beside it, never run).  XLA removes a loop of one
+    trip and turns a slice of a one-row array into a reshape, and the program it then
+    fuses rounds differently: a lone fit's polish differed from the same curve's in a
+    batch (6.7e-8 against 8.4e-8 in a near-exact fitness)."""
+    if size == 1:
+        xs = jax.tree_util.tree_map(lambda a: jnp.concatenate([a, a]), xs)
+    rows = max(size, 2)
+    shapes = jax.eval_shape(fn, jax.tree_util.tree_map(lambda a: a[0], xs))
+    out = jax.tree_util.tree_map(lambda s: jnp.zeros((rows, *s.shape), s.dtype), shapes)
+
+    def body(i, out):
+        one = fn(jax.tree_util.tree_map(lambda a: a[i], xs))
+        return jax.tree_util.tree_map(lambda o, x: o.at[i].set(x), out, one)
+
+    count = jax.lax.optimization_barrier(jnp.int32(size))
+    out = jax.lax.fori_loop(0, count, body, out)
+    return jax.tree_util.tree_map(lambda o: o[:size], out)
 
 
 def stack_bases(pairs, closed, num_samples, n_pad, dtype) -> SpanBasis:

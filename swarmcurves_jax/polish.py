@@ -16,8 +16,14 @@ from . import refine as local
 from .excursions import data_segments
 from .fitness import foot_samples
 from .layout import Layout, geometry
-from .objective import CPU_COMPILER_OPTIONS, by_degree, distances, excursion_term, over_curves
-from .objective import stack_bases
+from .objective import (
+    CPU_COMPILER_OPTIONS,
+    by_degree,
+    distances,
+    excursion_term,
+    over_curves,
+    stack_bases,
+)
 from .prepare import default_num_samples
 
 __all__ = ["REFINE_SAMPLES_PER_SPAN", "REFINE_STARTS", "polish_program", "polish_bases"]
@@ -87,7 +93,7 @@ def polish_program(
         return by_degree(one_swarm, groups, bases, pairs, state, boxes, seeds)
 
     per_curve = (state, boxes, seeds, points, mask)
-    return over_curves(one_curve, per_curve, shared, mesh, batch)
+    return over_curves(one_curve, per_curve, shared, mesh, batch, opaque=True)
 
 
 def polish_bases(pairs, groups, space: Layout, dtype):

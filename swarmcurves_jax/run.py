@@ -54,6 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--tol", type=float)
     ap.add_argument("--seed", type=int)
     ap.add_argument("--batch-size", dest="batch_size", type=int, help="overrides 'batch_size'")
+    ap.add_argument("--scheduler", help="a Dask scheduler's address (overrides 'scheduler')")
     ap.add_argument("--out", help="output folder")
     ap.add_argument("--force", action="store_true", help="replace an earlier run's files in --out")
     ap.add_argument(
@@ -300,8 +301,6 @@ def run_batch(cfg, sources: list[Source], out: Path | None, options: dict, *, re
     as soon as it is done (its :data:`DONE` last), then ``summary.csv`` (also after
     Ctrl-C, for the curves finished by then).  ``resume`` keeps the curves an earlier run
     completed; every result equals an uninterrupted run's."""
-    from . import fit_stream
-
     labels = [src.label for src in sources]
     folders = [slug(label) for label in labels]
     dup = sorted({f for f in folders if folders.count(f) > 1})
@@ -318,12 +317,8 @@ def run_batch(cfg, sources: list[Source], out: Path | None, options: dict, *, re
         raise relabel(exc) from None
     if out is not None:
         _begin_out(cfg, out, folders, rows)
-    stream = fit_stream(
-        (sources[i].read() for i in todo),
-        closed=[sources[i].closed for i in todo],
-        batch_size=cfg["batch_size"],
-        **options,
-    )
+    points = (sources[i].read() for i in todo)
+    stream = _stream(cfg, points, [sources[i].closed for i in todo], options)
     previous = signal.signal(signal.SIGTERM, _sigterm_to_interrupt)
     interrupted, start, slots, real = False, time.perf_counter(), 0, 0
     try:
@@ -360,6 +355,32 @@ def run_batch(cfg, sources: list[Source], out: Path | None, options: dict, *, re
             writer.writerows(rows[i] for i in order)
         print(f"wrote {out / SUMMARY} and {len(order)} result folders")
     return 130 if interrupted and len(order) == kept else 0
+
+
+def _stream(cfg, points, closed, options):
+    """The batch's ``(i, result)`` stream: on this machine, or on the Dask cluster whose
+    scheduler the config names."""
+    if cfg["scheduler"] is None:
+        from . import fit_stream
+
+        return fit_stream(points, closed=closed, batch_size=cfg["batch_size"], **options)
+    from .cluster import connect, fit_on_cluster
+
+    try:
+        client = connect(cfg["scheduler"])
+    except ImportError as exc:
+        raise ConfigError(f"scheduler: {exc}") from None
+    except (OSError, TimeoutError) as exc:
+        raise ConfigError(f"scheduler: cannot reach '{cfg['scheduler']}': {exc}") from None
+    batch_size = cfg["batch_size"] or 32
+    return _closing(
+        client, fit_on_cluster(client, points, closed=closed, batch_size=batch_size, **options)
+    )
+
+
+def _closing(client, stream):
+    with client:
+        yield from stream
 
 
 def _earlier_rows(cfg, out: Path, folders, *, resume: bool, force: bool) -> dict[int, dict]:

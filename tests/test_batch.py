@@ -107,6 +107,16 @@ def test_a_stream_equals_one_by_one_bit_for_bit(lone):
     assert read == list(range(6)) and i == 5
 
 
+def test_a_lone_curve_polishes_as_in_a_batch():
+    """A near-exact fit (fitness 8e-8, at float32's limit) polished alone and beside
+    another curve: the same bits (a lone polish once ran a loop XLA removed, and
+    rounded differently)."""
+    first, other = (random_bspline_points(6, 3, num_points=n, seed=n)[0] for n in (60, 64))
+    lone = fit(first, seed=0, **OPTS)
+    assert lone.solutions[1].info["refined"] and lone.solutions[1].info["fitness"] < 1e-7
+    _same(lone, fit_many([first, other], seed=[0, 1], **OPTS)[0])
+
+
 def test_one_compiled_program_per_bucket(compiles_during):
     sets = [np.c_[np.linspace(0, 1, n), np.linspace(0, 1, n) ** 2] for n in (33, 40, 47, 60)]
     opts = dict(OPTS, particles=12)  # shapes no other test compiles
