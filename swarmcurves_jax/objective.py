@@ -140,22 +140,23 @@ def masked_mean(distances, mask, count, parts: int = 1):
     return jnp.dot(total, jnp.ones_like(total), precision=PRECISION) * (1.0 / count)
 
 
-def over_curves(fn, per_curve, shared, mesh, batch, opaque=False):
+def over_curves(fn, per_curve, shared, mesh, batch, out_like=None):
     """``fn(shared, *one_curve)`` for every curve along the leading axis of ``per_curve``.
 
     A loop (``lax.map``), ``batch`` curves vmapped per trip: with ``batch`` 1 every curve
     runs exactly the program a lone fit runs, so results do not depend on the batch (on
     XLA:CPU a vmapped curve axis also makes the work 10-70 % slower).  With a ``mesh`` the
     curves are split over its devices by ``shard_map``, each looping over its own share.
-    ``opaque``: one curve at a time through :func:`_opaque_map`, so that a lone curve runs
-    the very loop body a batch's curves run.
+    ``out_like``: one curve's outputs (``jax.ShapeDtypeStruct``); given, one curve at a
+    time runs through :func:`_opaque_map`, so that a lone curve runs the very loop body a
+    batch's curves run.
     """
 
     def local(per_curve, shared):
         size = jax.tree_util.tree_leaves(per_curve)[0].shape[0]
         step = min(batch, size)
-        if opaque and step == 1:
-            return _opaque_map(lambda c: fn(shared, *c), per_curve, size)
+        if out_like is not None and step == 1:
+            return _opaque_map(lambda c: fn(shared, *c), per_curve, size, out_like)
         return jax.lax.map(
             lambda c: fn(shared, *c), per_curve, batch_size=step if step > 1 else None
         )
@@ -169,7 +170,7 @@ def over_curves(fn, per_curve, shared, mesh, batch, opaque=False):
     return split(per_curve, shared)
 
 
-def _opaque_map(fn, xs, size: int):
+def _opaque_map(fn, xs, size: int, out_like):
     """``lax.map(fn, xs)`` whose loop XLA cannot see the length of, over arrays of at
     least two rows (one curve: a copy beside it, never run).  XLA removes a loop of one
     trip and turns a slice of a one-row array into a reshape, and the program it then
@@ -178,8 +179,7 @@ def _opaque_map(fn, xs, size: int):
     if size == 1:
         xs = jax.tree_util.tree_map(lambda a: jnp.concatenate([a, a]), xs)
     rows = max(size, 2)
-    shapes = jax.eval_shape(fn, jax.tree_util.tree_map(lambda a: a[0], xs))
-    out = jax.tree_util.tree_map(lambda s: jnp.zeros((rows, *s.shape), s.dtype), shapes)
+    out = jax.tree_util.tree_map(lambda s: jnp.zeros((rows, *s.shape), s.dtype), out_like)
 
     def body(i, out):
         one = fn(jax.tree_util.tree_map(lambda a: a[i], xs))

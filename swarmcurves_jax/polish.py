@@ -93,7 +93,9 @@ def polish_program(
         return by_degree(one_swarm, groups, bases, pairs, state, boxes, seeds)
 
     per_curve = (state, boxes, seeds, points, mask)
-    return over_curves(one_curve, per_curve, shared, mesh, batch, opaque=True)
+    best = (state.best_position, state.best_fitness)  # one curve's outputs are shaped alike
+    out_like = tuple(jax.ShapeDtypeStruct(a.shape[1:], a.dtype) for a in best)
+    return over_curves(one_curve, per_curve, shared, mesh, batch, out_like)
 
 
 def polish_bases(pairs, groups, space: Layout, dtype):

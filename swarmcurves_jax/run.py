@@ -424,8 +424,10 @@ def _begin_out(cfg, out: Path, folders, kept: dict) -> None:
 
 
 def _run_record(cfg) -> dict:
-    """What a resumed run must share with the run it resumes: the config but its folders."""
-    return json.loads(json.dumps({k: v for k, v in cfg.items() if k not in ("out", "cache_dir")}))
+    """What a resumed run must share with the run it resumes: the config, but for the keys
+    that do not change a curve (where it runs and is kept, how many curves a call takes)."""
+    where = ("out", "cache_dir", "batch_size", "scheduler")
+    return json.loads(json.dumps({k: v for k, v in cfg.items() if k not in where}))
 
 
 def _refuse_clash(out: Path, planned) -> None:
