@@ -1,13 +1,16 @@
 """A corpus of curves: the command line's memory and time from 1,000 to 10,000 curves, a
 run killed half way and resumed, and a Dask cluster against one process.
 
-    python benchmarks/corpus.py [--sizes 1000,10000] [--iterations 20] [--dask-curves 200]
-                                [--skip resume,dask] [--out DIR]
+    python benchmarks/corpus.py [--sizes 1000,10000] [--cps 4-5] [--particles 16]
+                                [--iterations 10] [--dask-curves 200] [--skip resume,dask]
+                                [--out DIR]
 
 - **Streaming**: random open cubics (6-9 control points, 150-250 points, seeds 0...)
   written to one .npz, fitted by ``python -m swarmcurves_jax.run`` into a folder (cubics at
-  4-8 control points, 32 particles, ``--iterations`` each, the polish on, NPZ and JSON
-  files, no figures), each size in a fresh process: seconds, curves per second, and the
+  ``--cps`` control points, ``--particles``, ``--iterations`` each, the polish on, NPZ and
+  JSON files, no figures; light settings, so that 10,000 curves take minutes on 2 cores and
+  the per-curve host work weighs most), each size in a fresh process: seconds, curves per
+  second, and the
   peak resident memory of the process (``ru_maxrss`` from ``os.wait4``).  Targets: peak
   memory at the largest size within 1.5x the smallest's, seconds within 11x per 10x curves.
 - **Resume**: the smallest size again, killed (SIGKILL) once half of its curves are written,
@@ -43,7 +46,7 @@ import numpy as np
 from swarmcurves_jax.datasets import random_bspline_points
 
 REPO = Path(__file__).resolve().parents[1]
-FIT = dict(cps=range(4, 9), degrees=3, particles=32)
+FIT = dict(cps=range(4, 6), degrees=3, particles=16)
 
 
 def corpus(count: int) -> list[np.ndarray]:
@@ -221,7 +224,8 @@ def markdown(report) -> str:
     lines = [
         "# A corpus of curves",
         "",
-        f"{report['machine']}; cubics at 4-8 control points, {FIT['particles']} particles, "
+        f"{report['machine']}; cubics at {min(FIT['cps'])}-{max(FIT['cps'])} control points, "
+        f"{FIT['particles']} particles, "
         f"{report['iterations']} iterations, the polish on; "
         "`python benchmarks/corpus.py` (commit " + report["commit"] + ").",
         "",
@@ -276,12 +280,16 @@ def markdown(report) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="1000,10000")
-    ap.add_argument("--iterations", type=int, default=20)
+    ap.add_argument("--cps", default="4-5", help="a range A-B")
+    ap.add_argument("--particles", type=int, default=16)
+    ap.add_argument("--iterations", type=int, default=10)
     ap.add_argument("--dask-curves", type=int, default=200)
     ap.add_argument("--skip", default="", help="comma-separated: resume, dask")
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "corpus")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
+    low, high = (int(c) for c in args.cps.split("-"))
+    FIT.update(cps=range(low, high + 1), particles=args.particles)
     skip = set(filter(None, args.skip.split(",")))
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=REPO
