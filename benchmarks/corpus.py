@@ -63,11 +63,13 @@ def write_corpus(path: Path, count: int) -> None:
     np.savez(path, **{f"c{i:05d}": p for i, p in enumerate(corpus(count))})
 
 
-def command(npz: Path, out: Path, iterations: int, *extra) -> list[str]:
+def command(config: Path, npz: Path, out: Path, iterations: int) -> list[str]:
+    """The command line fitting ``npz`` into ``out``."""
     return [
         sys.executable,
         "-m",
         "swarmcurves_jax.run",
+        str(config),
         "--input",
         str(npz),
         "--cps",
@@ -81,21 +83,19 @@ def command(npz: Path, out: Path, iterations: int, *extra) -> list[str]:
         "--out",
         str(out),
         "--quiet",
-        *extra,
     ]
 
 
-def run_measured(args, env, config: Path) -> dict:
+def spawn(args, env, stderr=subprocess.PIPE) -> subprocess.Popen:
+    return subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=stderr)
+
+
+def run_measured(args, env) -> dict:
     """Run the command line to its end: seconds, peak resident memory, exit code."""
-    start = time.perf_counter()
-    proc = subprocess.Popen(
-        [*args[:3], str(config), *args[3:]],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
+    begun = time.perf_counter()
+    proc = spawn(args, env)
     _, status, usage = os.wait4(proc.pid, 0)
-    seconds = time.perf_counter() - start
+    seconds = time.perf_counter() - begun
     code = os.waitstatus_to_exitcode(status)
     if code != 0:
         raise RuntimeError(f"{' '.join(args)} exited {code}: {proc.stderr.read()[-2000:]!r}")
@@ -110,7 +110,7 @@ def streaming(sizes, iterations, work: Path, env, config: Path) -> list[dict]:
         write_corpus(npz, size)
         row = {
             "curves": size,
-            **run_measured(command(npz, work / f"out{size}", iterations), env, config),
+            **run_measured(command(config, npz, work / f"out{size}", iterations), env),
         }
         row["curves_per_s"] = size / row["seconds"]
         rows.append(row)
@@ -148,24 +148,19 @@ def _same_outputs(a: Path, b: Path) -> bool:
 def resume(size, iterations, work: Path, env, config: Path) -> dict:
     """Kill a run once half its curves are written, resume it, compare."""
     npz, out = work / f"corpus{size}.npz", work / "killed"
-    args = command(npz, out, iterations)
-    start = time.perf_counter()
-    proc = subprocess.Popen(
-        [*args[:3], str(config), *args[3:]],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    args = command(config, npz, out, iterations)
+    begun = time.perf_counter()
+    proc = spawn(args, env, subprocess.DEVNULL)
     while len(list(out.glob("*/summary.json"))) < size // 2:
         if proc.poll() is not None:
             raise RuntimeError("the run ended before half of its curves")
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    killed_after = time.perf_counter() - start
+    killed_after = time.perf_counter() - begun
     done = {p.parent.name for p in out.glob("*/summary.json")}
     before = _files(out)
-    resumed = run_measured([*args, "--resume"], env, config)
+    resumed = run_measured([*args, "--resume"], env)
     after = _files(out)
     kept = [f for f in before if f.split("/")[0] in done]
     row = {

@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-from typing import Callable, Iterable, Iterator, Sequence
+from typing import Callable, Iterable, Iterator, NamedTuple, Sequence
 
 import jax
 import numpy as np
@@ -27,7 +27,7 @@ from .assemble import collect
 from .devices import Placement
 from .launch import COMPILING, launch
 from .options import FitOptions
-from .prepare import group_key, prepare
+from .prepare import Prepared, group_key, prepare
 from .results import FitResult
 
 __all__ = ["fit_many", "fit_stream", "padding_waste"]
@@ -140,30 +140,46 @@ def fit_stream(
     ``progress`` shows a bar over the curves done.
     """
     opts = FitOptions.from_keywords(dict(options, cps=cps, degrees=degrees), "fit_stream")
+    place, per_call = _placement(devices, batch_size, vmap_curves)
+    calls = (
+        ([m.index for m in c], [m.prep for m in c], len(c) + (-len(c) % place.multiple))
+        for c in bucketed(point_sets, closed, seed, opts, per_call)
+    )
+    yield from _run_calls(calls, opts, place, None)
+
+
+class Member(NamedTuple):
+    """A streamed point set as read and prepared: its index, its inputs, its preparation."""
+
+    index: int
+    points: object
+    closed: bool
+    seed: object
+    prep: Prepared
+
+
+def bucketed(point_sets: Iterable, closed, seed, opts: FitOptions, size: int):
+    """The point sets of a stream, read, checked and prepared one at a time, gathered into
+    program calls: a shape bucket's :class:`Member` list once it holds ``size`` of them,
+    then each bucket's rest.  ``closed`` and ``seed``: one value or an iterable read
+    alongside."""
     if isinstance(point_sets, (str, bytes, np.ndarray)) or not isinstance(point_sets, Iterable):
         raise ValueError(
             "point_sets must be an iterable of (N, 2) or (N, 3) point arrays, got "
             f"{type(point_sets).__name__}"
         )
     closed_flags, seeds = _each(closed), _each(seed)
-    place, per_call = _placement(devices, batch_size, vmap_curves)
-
-    def calls():
-        waiting: dict[tuple, list] = {}
-        for i, points in enumerate(point_sets):
-            flag = check_bool(_next(closed_flags, "closed", i), f"closed[{i}]")
-            prep = prepare(points, flag, opts, _next(seeds, "seed", i), f"point_sets[{i}]")
-            members = waiting.setdefault(group_key(prep), [])
-            members.append((i, prep))
-            if len(members) == per_call:
-                yield [i for i, _ in members], [p for _, p in members], per_call
-                members.clear()
-        for members in waiting.values():
-            if members:
-                size = len(members) + (-len(members) % place.multiple)
-                yield [i for i, _ in members], [p for _, p in members], size
-
-    yield from _run_calls(calls(), opts, place, None)
+    waiting: dict[tuple, list[Member]] = {}
+    for i, points in enumerate(point_sets):
+        flag = check_bool(_next(closed_flags, "closed", i), f"closed[{i}]")
+        key = _next(seeds, "seed", i)
+        prep = prepare(points, flag, opts, key, f"point_sets[{i}]")
+        members = waiting.setdefault(group_key(prep), [])
+        members.append(Member(i, points, flag, key, prep))
+        if len(members) == size:
+            yield members.copy()
+            members.clear()
+    yield from (members for members in waiting.values() if members)
 
 
 def _placement(devices, batch_size, vmap_curves) -> tuple[Placement, int]:

@@ -16,10 +16,9 @@ from typing import Iterable, Iterator
 
 import jax
 
-from ._validation import check_bool, check_positive_int
-from .batch import _each, _next, fit_many
+from ._validation import check_positive_int
+from .batch import bucketed, fit_many
 from .options import FitOptions
-from .prepare import group_key, prepare
 from .results import FitResult
 
 __all__ = ["fit_on_cluster", "connect"]
@@ -56,13 +55,8 @@ def fit_on_cluster(
         in_flight = 2 * max(1, sum(client.nthreads().values()))
     in_flight = check_positive_int(in_flight, "in_flight")
     task = dict(options, cps=cps, degrees=degrees, progress=False)
-    closed_flags, seeds = _each(closed), _each(seed)
     running = as_completed()
     bar = _progress_bar() if opts.progress else None
-
-    def submit(members):
-        index, points, flags, keys = zip(*members)
-        running.add(client.submit(_fit_call, index, points, flags, keys, task, pure=False))
 
     def finished(count):  # the results of tasks as they finish, until ``count`` are out
         while running.count() > count:
@@ -72,21 +66,10 @@ def fit_on_cluster(
                     bar.update(1)
 
     try:
-        waiting: dict[tuple, list] = {}
-        for i, points in enumerate(point_sets):
-            flag = check_bool(_next(closed_flags, "closed", i), f"closed[{i}]")
-            key = _next(seeds, "seed", i)
-            prep = prepare(points, flag, opts, key, f"point_sets[{i}]")
-            members = waiting.setdefault(group_key(prep), [])
-            members.append((i, prep.points, flag, key))
-            if len(members) == batch_size:
-                yield from finished(in_flight - 1)
-                submit(members)
-                members.clear()
-        for members in waiting.values():
-            if members:
-                yield from finished(in_flight - 1)
-                submit(members)
+        for members in bucketed(point_sets, closed, seed, opts, batch_size):
+            yield from finished(in_flight - 1)
+            index, points, flags, keys, _ = zip(*members)
+            running.add(client.submit(_fit_call, index, points, flags, keys, task, pure=False))
         yield from finished(0)
     finally:
         for future in running.futures:

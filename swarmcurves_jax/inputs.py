@@ -1,5 +1,6 @@
 """The command line's inputs: point files, multi-curve files, folders, globs and the
-built-in datasets, each read into ``(points, closed, label)``; errors name the file and line.
+built-in datasets, each a :class:`Source` (label, closed, reader); errors name the file and
+line.
 
 A batch's curves are listed first (:func:`list_sources`: labels and readers, no points) and
 read one at a time as the run needs them, so a corpus is never held whole.
@@ -16,15 +17,7 @@ import numpy as np
 
 from .config import ConfigError
 
-__all__ = [
-    "Source",
-    "read_points",
-    "load_input",
-    "load_inputs",
-    "list_sources",
-    "is_batch",
-    "read_point_arrays",
-]
+__all__ = ["Source", "read_points", "list_sources", "is_batch"]
 
 
 class Source(NamedTuple):
@@ -84,22 +77,11 @@ def read_points(path: Path) -> np.ndarray:
 POINT_SUFFIXES = (".csv", ".txt", ".xyz", ".npy")
 
 
-def load_input(cfg) -> tuple[np.ndarray, bool, str]:
-    """``(points, closed, label)`` for a config whose ``input`` is one curve."""
-    (one,) = load_inputs(cfg)
-    return one
-
-
 def is_batch(name: str) -> bool:
     """Whether ``input`` names many curves: a folder, a glob, an .npz, outline:PATTERN."""
     if name.startswith("outline:"):
         return any(c in name for c in "*?[")
     return Path(name).is_dir() or name.endswith(".npz") or any(c in name for c in "*?[")
-
-
-def load_inputs(cfg) -> list[tuple[np.ndarray, bool, str]]:
-    """``(points, closed, label)`` of every curve the config's ``input`` names."""
-    return [(src.read(), src.closed, src.label) for src in list_sources(cfg)]
 
 
 def list_sources(cfg) -> list[Source]:
@@ -174,11 +156,6 @@ def _open_npz(path: Path):
     if not npz.files:
         raise ConfigError(f"input: '{path}' holds no arrays")
     return npz
-
-
-def read_point_arrays(path: Path) -> list[tuple[str, np.ndarray]]:
-    """``(name, points)`` of every array of a multi-curve .npz, in the file's order."""
-    return [(src.label, src.read()) for src in _npz_sources(path, False)]
 
 
 def _checked_array(arr: np.ndarray, where: str) -> np.ndarray:
