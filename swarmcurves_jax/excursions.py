@@ -13,7 +13,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .fitness import min_excess2
+from .fitness import excess2_at, min_excess2
 from .span_basis import SpanBasis
 
 __all__ = ["ALLOWANCE_BASE", "Polyline", "data_segments", "sample_excursions", "excursion"]
@@ -82,18 +82,22 @@ def sample_excursions(
     tangents: jax.Array,
     basis: SpanBasis,
     polyline: Polyline,
-    dense: bool = False,
+    segment: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """How far each curve sample strays beyond the data polyline's allowance, (M,), and
     the arc length it stands for, (M,) (0 on samples that repeat the last).
 
     The excess is ``sqrt(min over segments of max(0, d**2 - a**2))`` (``d``: the
     distance to a segment, ``a``: its allowance): zero inside the allowance, about ``d``
-    far from it, and one square root per sample rather than per pair.  ``dense``: the
-    form that compiles quickly, for a caller that evaluates it a few times
-    (:func:`~swarmcurves_jax.fitness.min_excess2`).
+    far from it, and one square root per sample rather than per pair.  ``segment``
+    (M,): the segment each sample's minimum is at, if known
+    (:func:`~swarmcurves_jax.fitness.nearest_segments`, the polish's search); then only
+    that one is measured.
     """
-    over = min_excess2(samples, *polyline, dense=dense)
+    if segment is None:
+        over = min_excess2(samples, *polyline)
+    else:
+        over = excess2_at(samples, *polyline, segment)
     excess = jnp.sqrt(jnp.maximum(over, 0.0) + 1e-30)
     real = jnp.arange(samples.shape[0]) < basis.per_span * basis.num_spans
     return excess, jnp.sqrt(jnp.sum(tangents * tangents, axis=1)) * real

@@ -17,7 +17,7 @@ import numpy as np
 from jax.sharding import PartitionSpec as P
 
 from .excursions import Polyline, excursion, sample_excursions
-from .fitness import foot_samples, point_distances
+from .fitness import foot_samples, nearest_segments, point_distances
 from .layout import Layout, geometry
 from .span_basis import PRECISION, SpanBasis, curve_samples, make_span_basis
 
@@ -26,6 +26,7 @@ __all__ = [
     "distances",
     "foot_starts",
     "excursion_term",
+    "excursion_segments",
     "search_apart",
     "paired",
     "by_degree",
@@ -45,7 +46,7 @@ CPU_COMPILER_OPTIONS = {
 }
 
 
-def distances(q, basis, points, space, pair, k, foot=None, stale=False):
+def distances(q, basis, points, space, pair, k, foot=None, stale=False, gather=False):
     """Estimated distance of every point to the curve of position ``q``: shape (N,).
     A ``foot`` given here is stored (a branch's result, the dense search's),
     never fused from a search in the same loop, so it needs no barrier; ``stale``: it may
@@ -61,6 +62,7 @@ def distances(q, basis, points, space, pair, k, foot=None, stale=False):
         barrier=foot is None,
         uniform=uniform,
         stale=stale,
+        gather=gather,
     )
 
 
@@ -71,16 +73,25 @@ def foot_starts(q, basis, points, space, pair, k, dense=True):
     return foot_samples(*geometry(q, space), basis, points, dense)
 
 
-def excursion_term(q, basis, polyline: Polyline, space, pair, k, per_sample=False):
+def excursion_term(q, basis, polyline: Polyline, space, pair, k, segment=None):
     """How far the curve of position ``q`` strays from the data polyline: the arc-length
-    mean excess (:func:`~swarmcurves_jax.excursions.excursion`), the swarm's; or with
-    ``per_sample`` each sample's excess and arc length, the polish's residuals, in the
-    form that compiles quickly (``dense``: the polish evaluates them a few dozen times)."""
+    mean excess (:func:`~swarmcurves_jax.excursions.excursion`), the swarm's; or, given
+    each sample's nearest ``segment`` (:func:`excursion_segments`), each sample's excess
+    and arc length, the polish's residuals."""
     basis = space.basis(q, pair, k, basis)
     samples, tangents = curve_samples(*geometry(q, space), basis)
-    if per_sample:
-        return sample_excursions(samples, tangents, basis, polyline, dense=True)
+    if segment is not None:
+        return sample_excursions(samples, tangents, basis, polyline, segment)
     return excursion(samples, tangents, basis, polyline)
+
+
+def excursion_segments(q, basis, polyline: Polyline, space, pair, k):
+    """The data segment each curve sample of position ``q`` is measured against (M,)
+    (:func:`~swarmcurves_jax.fitness.nearest_segments`): the polish's search for
+    :func:`excursion_term`, as :func:`foot_starts` is for :func:`distances`."""
+    basis = space.basis(q, pair, k, basis)
+    samples, _ = curve_samples(*geometry(q, space), basis)
+    return nearest_segments(samples, *polyline)
 
 
 def search_apart(space: Layout) -> bool:

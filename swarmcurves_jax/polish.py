@@ -20,6 +20,7 @@ from .objective import (
     CPU_COMPILER_OPTIONS,
     by_degree,
     distances,
+    excursion_segments,
     excursion_term,
     over_curves,
     stack_bases,
@@ -57,17 +58,20 @@ def polish_program(
         count = jnp.sum(mask)
 
         def one_swarm(pair, state, box, seed, basis, k):
-            def residuals(q, foot):
+            def residuals(q, found):
                 """The points' distances, then each curve sample's excursion weighted by
                 its share of the arc (times the point count: their sum per point is the
                 swarm's excursion term)."""
-                near = distances(q, basis, points, space, pair, k, foot) * mask
-                excess, arc = excursion_term(q, basis, polyline, space, pair, k, per_sample=True)
+                foot, segment = found
+                near = distances(q, basis, points, space, pair, k, foot, gather=True) * mask
+                excess, arc = excursion_term(q, basis, polyline, space, pair, k, segment)
                 share = jax.lax.stop_gradient(arc * (count / jnp.maximum(jnp.sum(arc), 1e-30)))
                 return jnp.concatenate([near, excess * share])
 
             def search(q):
-                return foot_samples(*geometry(q, space), space.basis(q, pair, k, basis), points)
+                """Each point's foot sample and each curve sample's nearest data segment."""
+                foot = foot_samples(*geometry(q, space), space.basis(q, pair, k, basis), points)
+                return foot, excursion_segments(q, basis, polyline, space, pair, k)
 
             free = box.mask * (box.lower != box.upper)  # pinned ends and padding stay
             others = min(REFINE_STARTS - 1 - int(seeded), state.pbest_fitness.shape[0])

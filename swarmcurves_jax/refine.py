@@ -121,7 +121,7 @@ def levenberg_marquardt(
         d_new = residuals(x_new, aux_new)
         ok = jnp.sum(w * d_new**2) < jnp.sum(w * d**2)  # NaN compares False
         x = jnp.where(ok, x_new, x)
-        aux = jnp.where(ok, aux_new, aux)
+        aux = jax.tree_util.tree_map(lambda a, b: jnp.where(ok, a, b), aux_new, aux)
         mu = jnp.clip(jnp.where(ok, mu / 3.0, mu * 4.0), 1e-10, 1e10)
         best = _keep_better(ok, x_new, d_new, mean, score, best)
         return (x, aux, mu, best), None

@@ -10,21 +10,23 @@ from hypothesis import strategies as st
 
 from swarmcurves_jax import design_matrix, make_knots, normalise
 from swarmcurves_jax.datasets import random_bspline_points, random_nurbs_points
-from swarmcurves_jax.prepare import default_num_samples
 from swarmcurves_jax.fitness import (
-    min_excess2,
-    span_and_start,
+    excess2_at,
     foot_samples,
+    min_excess2,
     nearest_sample,
+    nearest_segments,
     point_distances,
     polyline_distances,
     search_blocks,
     search_starts,
+    span_and_start,
     starts_on_segment,
 )
-from swarmcurves_jax.span_basis import SpanBasis, free_knot_basis, make_span_basis
 from swarmcurves_jax.knots import breakpoints
+from swarmcurves_jax.prepare import default_num_samples
 from swarmcurves_jax.projection import project_points
+from swarmcurves_jax.span_basis import SpanBasis, free_knot_basis, make_span_basis
 
 
 def as_jax(basis):
@@ -100,8 +102,9 @@ def test_polyline_distances_are_exact(seed, num, dim):
 @given(st.integers(0, 1000), st.sampled_from([1, 16, 17, 200]), st.sampled_from([2, 3]))
 def test_min_excess2_is_the_smallest_distance_beyond_each_allowance(seed, num, dim):
     # the excursion's minimum over data segments, fused in blocks of 16 (2D) or 10 (3D)
-    # segments and as one broadcast: the same exact float64 value, with empty segments and
-    # rows that are no segment (allowance -inf: never the nearest)
+    # segments (the swarm's), and at the segment the polish's search finds: the same exact
+    # float64 value, with empty segments and rows that are no segment (allowance -inf:
+    # never the nearest)
     rng = np.random.default_rng(seed)
     verts = rng.uniform(-1, 1, (num + 1, dim))
     verts[rng.uniform(size=num + 1) < 0.1] = verts[0]
@@ -112,9 +115,10 @@ def test_min_excess2_is_the_smallest_distance_beyond_each_allowance(seed, num, d
     d = _segment_distances(pts, mid - half, mid + half) ** 2 - allow2[None]
     exact = d.min(1)
     args = [jnp.asarray(x, jnp.float32) for x in (pts, mid, half, allow2)]
-    for dense in (False, True):
-        got = np.asarray(min_excess2(*args, dense=dense))
-        np.testing.assert_allclose(got, exact, rtol=1e-5, atol=2e-6, err_msg=f"dense={dense}")
+    fused = np.asarray(min_excess2(*args))
+    searched = np.asarray(excess2_at(*args, nearest_segments(*args)))
+    for got in (fused, searched):
+        np.testing.assert_allclose(got, exact, rtol=1e-5, atol=2e-6)
 
 
 def test_polyline_distances_keep_float64():
@@ -322,10 +326,11 @@ def test_the_search_barrier_changes_no_value(closed, n, k, rational):
     "closed,n,k,rational",
     [(False, 4, 3, False), (False, 9, 3, False), (True, 7, 2, True), (False, 6, 5, False)],
 )
-def test_uniform_bounds_change_no_value(closed, n, k, rational):
+def test_uniform_bounds_and_gathered_rows_change_no_value(closed, n, k, rational):
     """``uniform=True`` (fit's fixed knots) takes a span's Newton bounds from the first,
-    the last or any middle span instead of the chain of selects: the same distances, bit
-    for bit, from a lone span (n = k + 1) to many, with padded spans and control points."""
+    the last or any middle span instead of the chain of selects, and ``gather=True`` (the
+    polish) indexes each point's span row: the same distances and derivatives, bit for
+    bit, from a lone span (n = k + 1) to many, with padded spans and control points."""
     xn, cn, w, _ = _random_curve(n, k, closed, 5, rational)
     samples = default_num_samples([(k, n)], closed)
     basis = as_jax(make_span_basis(n, k, closed, samples, n + 2, (n if closed else n - k) + 2))
@@ -334,14 +339,19 @@ def test_uniform_bounds_change_no_value(closed, n, k, rational):
     trial = cn + 3e-2 * np.random.default_rng(6).standard_normal(cn.shape)
     trial = jnp.asarray(np.vstack([trial, pad]), jnp.float32)
     wj = None if wj is None else jnp.concatenate([wj, jnp.ones(2, jnp.float32)])
-    got = [
-        np.asarray(
-            jax.jit(lambda c, u=u: point_distances(c, wj, basis, pts, degree=k, uniform=u))(trial)
-        )
-        for u in (False, True)
-    ]
-    assert np.all(got[0] > 0)
-    np.testing.assert_array_equal(got[0], got[1])
+    direction = jnp.asarray(np.random.default_rng(7).standard_normal(trial.shape), jnp.float32)
+    got = []
+    for u, g in ((False, False), (True, False), (False, True)):
+
+        def value_and_slope(c, u=u, g=g):
+            fn = lambda c: point_distances(c, wj, basis, pts, degree=k, uniform=u, gather=g)  # noqa: E731
+            return jax.jvp(fn, (c,), (direction,))
+
+        got.append([np.asarray(a) for a in jax.jit(value_and_slope)(trial)])
+    assert np.all(got[0][0] > 0) and np.any(got[0][1] != 0)
+    for other in got[1:]:
+        np.testing.assert_array_equal(got[0][0], other[0])
+        np.testing.assert_array_equal(got[0][1], other[1])
 
 
 @pytest.mark.parametrize(
