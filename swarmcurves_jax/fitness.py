@@ -475,7 +475,9 @@ def _span_rows(coef, basis: SpanBasis, span, tau, uniform: bool):
 def _gathered_rows(coef, basis: SpanBasis, span):
     """:func:`_span_rows` by indexing: the same values in a handful of operations, for
     a caller that evaluates the fitness a few dozen times (the polish), where the chain
-    of selects over every span costs more to trace and compile than it saves."""
+    of selects over every span costs more to trace and compile than it saves (measured:
+    the polish of ``fit(f1, cps=range(4, 26), degrees=[2, 3])`` traced in 2.4 s instead
+    of 4.7 s and compiled in 2.8 s instead of 4.7 s, and ran 12-20 % longer warm)."""
     rows = coef[span]  # (N, K + 3, cols)
     sel = [[rows[:, r, c] for c in range(coef.shape[2])] for r in range(coef.shape[1])]
     return sel, basis.lo[span], basis.hi[span]

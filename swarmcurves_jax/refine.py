@@ -46,8 +46,9 @@ class Problem(NamedTuple):
     """What a polish minimises: the distances ``residuals(x, search(x))`` (shape (N,)) over
     the coordinates of ``x`` where ``free`` is 1, inside ``[lower, upper]``.
 
-    ``search(x)`` is the non-differentiable part (where each point's foot lies), kept out
-    of every differentiation.  ``holdout`` (N,) marks points left out of the fit that pick
+    ``search(x)`` is the non-differentiable part (a pytree: where each point's foot lies,
+    which data segment each curve sample is measured against), kept out of every
+    differentiation.  ``holdout`` (N,) marks points left out of the fit that pick
     the iterate returned: early stopping, so noisy data are not chased
     (:data:`HOLDOUT_EVERY`).  ``valid`` (N,) marks the real points of a padded batch:
     the residuals of the others must be zero, and means count only the real ones.
