@@ -48,7 +48,7 @@ import numpy as np
 from scipy.interpolate import make_splprep
 
 from swarmcurves_jax import fit, fit_many, make_knots, normalise
-from swarmcurves_jax.batch import padding_waste
+from swarmcurves_jax.batch import CURVES_PER_DEVICE, call_size, padding_waste
 from swarmcurves_jax.datasets import random_bspline_points
 from swarmcurves_jax.measures import deviations
 from swarmcurves_jax.prepare import bucket_length
@@ -125,9 +125,10 @@ def throughput(sizes, iterations, loop_max, skip):
         buckets = {}
         for p in sets:
             buckets.setdefault(bucket_length(len(p)), []).append(p)
+        devices = len(jax.devices())
         warm = []
         for members in buckets.values():
-            warm += members[: -(-len(members) // -(-len(members) // 32))]
+            warm += members[: call_size(len(members), CURVES_PER_DEVICE * devices, devices)]
         start = time.perf_counter()
         fit_many(warm, **options)
         cold = time.perf_counter() - start

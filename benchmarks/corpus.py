@@ -46,7 +46,7 @@ import numpy as np
 from swarmcurves_jax.datasets import random_bspline_points
 
 REPO = Path(__file__).resolve().parents[1]
-FIT = dict(cps=range(4, 6), degrees=3, particles=16)
+DEGREE = 3
 
 
 def corpus(count: int) -> list[np.ndarray]:
@@ -63,8 +63,20 @@ def write_corpus(path: Path, count: int) -> None:
     np.savez(path, **{f"c{i:05d}": p for i, p in enumerate(corpus(count))})
 
 
-def command(config: Path, npz: Path, out: Path, iterations: int) -> list[str]:
-    """The command line fitting ``npz`` into ``out``."""
+def fit_options(settings) -> dict:
+    """The keywords of ``fit_many`` for the run's settings (``--cps A-B``, particles,
+    iterations)."""
+    low, high = (int(c) for c in settings["cps"].split("-"))
+    return dict(
+        cps=range(low, high + 1),
+        degrees=DEGREE,
+        particles=settings["particles"],
+        iterations=settings["iterations"],
+    )
+
+
+def command(config: Path, npz: Path, out: Path, settings) -> list[str]:
+    """The command line fitting ``npz`` into ``out`` with the run's settings."""
     return [
         sys.executable,
         "-m",
@@ -73,13 +85,13 @@ def command(config: Path, npz: Path, out: Path, iterations: int) -> list[str]:
         "--input",
         str(npz),
         "--cps",
-        f"{min(FIT['cps'])}-{max(FIT['cps'])}",
+        settings["cps"],
         "--degrees",
-        str(FIT["degrees"]),
+        str(DEGREE),
         "--particles",
-        str(FIT["particles"]),
+        str(settings["particles"]),
         "--iterations",
-        str(iterations),
+        str(settings["iterations"]),
         "--out",
         str(out),
         "--quiet",
@@ -103,14 +115,14 @@ def run_measured(args, env) -> dict:
     return {"seconds": seconds, "peak_mib": usage.ru_maxrss / 1024}
 
 
-def streaming(sizes, iterations, work: Path, env, config: Path) -> list[dict]:
+def streaming(sizes, settings, work: Path, env, config: Path) -> list[dict]:
     rows = []
     for size in sizes:
         npz = work / f"corpus{size}.npz"
         write_corpus(npz, size)
         row = {
             "curves": size,
-            **run_measured(command(config, npz, work / f"out{size}", iterations), env),
+            **run_measured(command(config, npz, work / f"out{size}", settings), env),
         }
         row["curves_per_s"] = size / row["seconds"]
         rows.append(row)
@@ -145,10 +157,10 @@ def _same_outputs(a: Path, b: Path) -> bool:
     return True
 
 
-def resume(size, iterations, work: Path, env, config: Path) -> dict:
+def resume(size, settings, work: Path, env, config: Path) -> dict:
     """Kill a run once half its curves are written, resume it, compare."""
     npz, out = work / f"corpus{size}.npz", work / "killed"
-    args = command(config, npz, out, iterations)
+    args = command(config, npz, out, settings)
     begun = time.perf_counter()
     proc = spawn(args, env, subprocess.DEVNULL)
     while len(list(out.glob("*/summary.json"))) < size // 2:
@@ -175,14 +187,14 @@ def resume(size, iterations, work: Path, env, config: Path) -> dict:
     return row
 
 
-def dask_vs_local(count, iterations) -> dict:
+def dask_vs_local(count, settings) -> dict:
     from distributed import Client, LocalCluster
 
     from swarmcurves_jax import fit_many
     from swarmcurves_jax.cluster import fit_on_cluster
 
     sets = corpus(count)
-    options = dict(FIT, iterations=iterations)
+    options = fit_options(settings)
     fit_many(sets, **options)  # compile every bucket
     start = time.perf_counter()
     local = fit_many(sets, **options)
@@ -219,8 +231,8 @@ def markdown(report) -> str:
     lines = [
         "# A corpus of curves",
         "",
-        f"{report['machine']}; cubics at {min(FIT['cps'])}-{max(FIT['cps'])} control points, "
-        f"{FIT['particles']} particles, "
+        f"{report['machine']}; cubics at {report['cps']} control points, "
+        f"{report['particles']} particles, "
         f"{report['iterations']} iterations, the polish on; "
         "`python benchmarks/corpus.py` (commit " + report["commit"] + ").",
         "",
@@ -283,8 +295,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=REPO / "benchmarks" / "results" / "corpus")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
-    low, high = (int(c) for c in args.cps.split("-"))
-    FIT.update(cps=range(low, high + 1), particles=args.particles)
+    settings = {"cps": args.cps, "particles": args.particles, "iterations": args.iterations}
+    fit_options(settings)  # a malformed --cps fails here, before anything runs
     skip = set(filter(None, args.skip.split(",")))
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=REPO
@@ -293,18 +305,18 @@ def main(argv=None) -> int:
         "commit": commit,
         "machine": f"{platform.machine()}, {os.cpu_count()} cores, "
         f"Python {platform.python_version()}",
-        "iterations": args.iterations,
+        **settings,
     }
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         config = work / "job.yaml"
         config.write_text("figures: []\nexports: [json, npz]\n")
         env = dict(os.environ, SWARMCURVES_CACHE_DIR=str(work / "programs"))
-        report["streaming"] = streaming(sizes, args.iterations, work, env, config)
+        report["streaming"] = streaming(sizes, settings, work, env, config)
         if "resume" not in skip:
-            report["resume"] = resume(sizes[0], args.iterations, work, env, config)
+            report["resume"] = resume(sizes[0], settings, work, env, config)
     if "dask" not in skip:
-        report["dask"] = dask_vs_local(args.dask_curves, args.iterations)
+        report["dask"] = dask_vs_local(args.dask_curves, settings)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "report.json").write_text(json.dumps(report, indent=1))
     text = markdown(report)

@@ -30,7 +30,10 @@ from .options import FitOptions
 from .prepare import Prepared, group_key, prepare
 from .results import FitResult
 
-__all__ = ["fit_many", "fit_stream", "padding_waste"]
+__all__ = ["CURVES_PER_DEVICE", "call_size", "fit_many", "fit_stream", "padding_waste"]
+
+#: Curves per program call and device when ``batch_size`` is not given.
+CURVES_PER_DEVICE = 32
 
 
 def fit_many(
@@ -190,7 +193,7 @@ def _placement(devices, batch_size, vmap_curves) -> tuple[Placement, int]:
     if vmap_curves is None:
         vmap_curves = 1 if _platform(place) == "cpu" else 16
     place = place._replace(batch=check_positive_int(vmap_curves, "vmap_curves"))
-    per_call = batch_size or 32 * place.multiple
+    per_call = batch_size or CURVES_PER_DEVICE * place.multiple
     return place, per_call + (-per_call % place.multiple)
 
 
@@ -232,10 +235,17 @@ def _calls(groups: dict, per_call: int, multiple: int):
     """The curve indices of every program call: a group split into calls of equal size
     (at most ``per_call``, a multiple of the devices), so it compiles once."""
     for members in groups.values():
-        size = math.ceil(len(members) / math.ceil(len(members) / per_call))
-        size += -size % multiple  # every device gets a share
+        size = call_size(len(members), per_call, multiple)
         for part in range(math.ceil(len(members) / size)):
             yield members[part * size : (part + 1) * size], size
+
+
+def call_size(count: int, per_call: int, multiple: int = 1) -> int:
+    """The curves of each program call for a group of ``count`` curves of one shape: at
+    most ``per_call``, evened out over the group's calls (so the group compiles one
+    program), and a multiple of ``multiple`` (every device gets a share)."""
+    size = math.ceil(count / math.ceil(count / per_call))
+    return size + (-size % multiple)
 
 
 def padding_waste(results: Sequence[FitResult]) -> float:

@@ -30,6 +30,7 @@ __all__ = [
     "starts_on_segment",
     "polyline_distances",
     "foot_samples",
+    "dense_starts",
     "point_distances",
     "min_excess2",
     "nearest_segments",
@@ -343,7 +344,13 @@ def foot_samples(
     """
     if not dense:
         return search_starts(points, *curve_samples(ctrl, weights, basis))
-    return _start(*_search_dense(points, *curve_samples(ctrl, weights, basis)), points.dtype)
+    return dense_starts(points, *curve_samples(ctrl, weights, basis))
+
+
+def dense_starts(points: jax.Array, samples: jax.Array, tangents: jax.Array) -> jax.Array:
+    """:func:`search_starts` by :func:`nearest_sample_dense` (always the foot on the
+    segment), from samples already made: for a caller that also measures them otherwise."""
+    return _start(*_search_dense(points, samples, tangents), points.dtype)
 
 
 def span_and_start(start: jax.Array, basis: SpanBasis, dtype, barrier: bool = True):

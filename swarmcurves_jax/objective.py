@@ -17,7 +17,7 @@ import numpy as np
 from jax.sharding import PartitionSpec as P
 
 from .excursions import Polyline, excursion, sample_excursions
-from .fitness import foot_samples, nearest_segments, point_distances
+from .fitness import dense_starts, foot_samples, nearest_segments, point_distances
 from .layout import Layout, geometry
 from .span_basis import PRECISION, SpanBasis, curve_samples, make_span_basis
 
@@ -26,7 +26,7 @@ __all__ = [
     "distances",
     "foot_starts",
     "excursion_term",
-    "excursion_segments",
+    "polish_search",
     "search_apart",
     "paired",
     "by_degree",
@@ -76,7 +76,7 @@ def foot_starts(q, basis, points, space, pair, k, dense=True):
 def excursion_term(q, basis, polyline: Polyline, space, pair, k, segment=None):
     """How far the curve of position ``q`` strays from the data polyline: the arc-length
     mean excess (:func:`~swarmcurves_jax.excursions.excursion`), the swarm's; or, given
-    each sample's nearest ``segment`` (:func:`excursion_segments`), each sample's excess
+    each sample's nearest ``segment`` (:func:`polish_search`), each sample's excess
     and arc length, the polish's residuals."""
     basis = space.basis(q, pair, k, basis)
     samples, tangents = curve_samples(*geometry(q, space), basis)
@@ -85,13 +85,14 @@ def excursion_term(q, basis, polyline: Polyline, space, pair, k, segment=None):
     return excursion(samples, tangents, basis, polyline)
 
 
-def excursion_segments(q, basis, polyline: Polyline, space, pair, k):
-    """The data segment each curve sample of position ``q`` is measured against (M,)
-    (:func:`~swarmcurves_jax.fitness.nearest_segments`): the polish's search for
-    :func:`excursion_term`, as :func:`foot_starts` is for :func:`distances`."""
+def polish_search(q, basis, points, polyline: Polyline, space, pair, k):
+    """The polish's search on the curve of position ``q``, from one sampling of it: where
+    each point's Newton steps start (N,) (for :func:`distances`) and the data segment
+    each curve sample is measured against (M,) (for :func:`excursion_term`); both
+    piecewise constant in ``q``, so kept out of every differentiation."""
     basis = space.basis(q, pair, k, basis)
-    samples, _ = curve_samples(*geometry(q, space), basis)
-    return nearest_segments(samples, *polyline)
+    samples, tangents = curve_samples(*geometry(q, space), basis)
+    return dense_starts(points, samples, tangents), nearest_segments(samples, *polyline)
 
 
 def search_apart(space: Layout) -> bool:

@@ -14,15 +14,14 @@ import jax.numpy as jnp
 
 from . import refine as local
 from .excursions import data_segments
-from .fitness import foot_samples
-from .layout import Layout, geometry
+from .layout import Layout
 from .objective import (
     CPU_COMPILER_OPTIONS,
     by_degree,
     distances,
-    excursion_segments,
     excursion_term,
     over_curves,
+    polish_search,
     stack_bases,
 )
 from .prepare import default_num_samples
@@ -69,9 +68,7 @@ def polish_program(
                 return jnp.concatenate([near, excess * share])
 
             def search(q):
-                """Each point's foot sample and each curve sample's nearest data segment."""
-                foot = foot_samples(*geometry(q, space), space.basis(q, pair, k, basis), points)
-                return foot, excursion_segments(q, basis, polyline, space, pair, k)
+                return polish_search(q, basis, points, polyline, space, pair, k)
 
             free = box.mask * (box.lower != box.upper)  # pinned ends and padding stay
             others = min(REFINE_STARTS - 1 - int(seeded), state.pbest_fitness.shape[0])
