@@ -92,8 +92,9 @@ def in_frame(curve: Curve, center, scale) -> Curve:
 
 
 def baseline(pts: np.ndarray, n: int, closed: bool) -> Curve:
-    """Plain least squares with 20 rounds of foot-point correction, uniform knots."""
-    ctrl = least_squares_ctrl(pts, n, DEGREE, closed, rounds=20)
+    """Plain least squares from chord lengths with 20 rounds of foot-point correction,
+    uniform knots."""
+    ctrl = least_squares_ctrl(pts, n, DEGREE, closed, rounds=20, even=False)
     return Curve(DEGREE, ctrl, np.ones(n), make_knots(n, DEGREE, closed), closed=closed)
 
 

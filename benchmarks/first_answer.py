@@ -128,16 +128,19 @@ def child(names: list[str], iterations: int) -> list[dict]:
 
 
 def _env(cache_home: Path) -> dict:
-    """A child's environment: the package from this tree, compiled programs kept in
-    ``cache_home`` (through the package's own setting, on any platform), nothing else of
-    JAX's or the package's settings."""
+    """A child's environment: the package from this tree (ahead of any PYTHONPATH set),
+    compiled programs kept in ``cache_home`` (through the package's own setting, on any
+    platform), nothing else of JAX's or the package's settings."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "SWARMCURVES_"))}
-    return dict(env, SWARMCURVES_CACHE_DIR=str(cache_home / "xla"), PYTHONPATH=str(REPO))
+    path = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
+    return dict(env, SWARMCURVES_CACHE_DIR=str(cache_home / "xla"), PYTHONPATH=path)
 
 
 def run_child(names, iterations, cache_home) -> list[dict]:
     code = [sys.executable, __file__, "--child", ",".join(names), "--iterations", str(iterations)]
-    done = subprocess.run(code, env=_env(cache_home), capture_output=True, text=True, check=True)
+    done = subprocess.run(code, env=_env(cache_home), capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"the child process failed (exit {done.returncode}):\n{done.stderr}")
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 

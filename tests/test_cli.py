@@ -256,7 +256,9 @@ def test_batch_folder_writes_a_result_per_curve_and_a_summary(tmp_path, capsys):
     for row in rows:
         curves = read_solutions(out / row["folder"] / "solutions.json")
         assert [c.n_ctrl for c in curves] == [4, 5]
-        assert float(row["best_error"]) == pytest.approx(min(c.error for c in curves), rel=1e-6)
+        best = min(curves, key=lambda c: c.mean_deviation)  # FitResult.best's measure
+        assert float(row["best_mean_deviation"]) == pytest.approx(best.mean_deviation, rel=1e-6)
+        assert float(row["best_error"]) == pytest.approx(best.error, rel=1e-6)
         assert curves[0].dim == (3 if row["input"] == "helix" else 2)
     # the same run again is refused before any work; a glob picks its files only
     assert main(["--input", str(tmp_path / "scans"), *BATCH_ARGS, "--out", str(out)]) == 2

@@ -7,6 +7,8 @@ import re
 import jax
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from swarmcurves_jax import Curve, FitResult, fit
 from swarmcurves_jax.datasets import random_bspline_points
@@ -38,6 +40,74 @@ def test_recovers_random_cubic(seed, n, closed, dim, cps):
     assert gap.max() < 0.01 * np.ptp(pts)
     if not closed:
         np.testing.assert_allclose(samples[0], pts[0], atol=1e-9)
+
+
+# Points a program sampled at even parameter steps (as CAD and drawing programs flatten
+# their curves): the seed solved on even parameters is exact, so the fit recovers the curve
+# at any count, rational too (random curves of each kind at counts >= 9).
+@pytest.mark.parametrize(
+    "degree,n,closed,dim,rational",
+    [
+        (5, 12, False, 2, False),
+        (2, 16, True, 3, False),
+        (3, 9, False, 3, False),
+        (3, 9, True, 2, True),
+    ],
+)
+def test_recovers_curves_sampled_at_even_parameters(degree, n, closed, dim, rational):
+    from swarmcurves_jax import make_knots
+    from swarmcurves_jax.datasets import random_nurbs_points
+    from swarmcurves_jax.projection import project_points
+
+    if rational:
+        pts, ctrl, w = random_nurbs_points(n, degree, closed, 200, dim, seed=7)
+    else:
+        (pts, ctrl), w = random_bspline_points(n, degree, closed, 200, dim, seed=7), np.ones(n)
+    result = fit(pts, cps=[n], degrees=degree, closed=closed, rational=rational, iterations=300)
+    curve = result[degree, n]
+    assert curve.error < 1e-6
+    # both ways: the fitted curve's samples lie on the true curve
+    samples = curve.evaluate(np.linspace(0, 1, 1000, endpoint=not closed))
+    gap = project_points(samples, ctrl, w, make_knots(n, degree, closed), degree, closed)[0]
+    assert gap.max() < 1e-5 * result.scale
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    k=st.integers(1, 5),
+    extra=st.integers(0, 10),
+    closed=st.booleans(),
+    reverse=st.booleans(),
+    rational=st.booleans(),
+    seed=st.integers(0, 2**16),
+)
+def test_seeds_are_exact_on_points_at_even_parameters(k, extra, closed, reverse, rational, seed):
+    """The least-squares seeds (polynomial and rational) reproduce a curve sampled at even
+    parameter steps to rounding, in either order of the points (a closed curve's reversed
+    points start one step on)."""
+    from swarmcurves_jax import make_knots
+    from swarmcurves_jax.basis import design_matrix
+    from swarmcurves_jax.datasets import random_nurbs_points
+    from swarmcurves_jax.seeds import least_squares_ctrl, least_squares_nurbs
+
+    n = k + 2 + extra
+    weights = (0.3, 3.0) if rational else (1.0, 1.0)
+    pts, ctrl, w = random_nurbs_points(n, k, closed, 120, 2, seed, weights)
+    pts = pts[::-1] if reverse else pts
+    t = make_knots(n, k, closed)
+    u = np.linspace(0, 1, 1000, endpoint=not closed)
+
+    def gap(c, weights):
+        b = design_matrix(u, t, k, closed=closed) * weights
+        fitted = b @ c / b.sum(axis=1, keepdims=True)
+        b = design_matrix(u, t, k, closed=closed) * w
+        truth = b @ ctrl / b.sum(axis=1, keepdims=True)
+        return np.min(np.linalg.norm(fitted[:, None] - truth[None], axis=2), axis=1).max()
+
+    if rational:
+        assert gap(*least_squares_nurbs(pts, n, k, closed)) < 1e-8
+    else:
+        assert gap(least_squares_ctrl(pts, n, k, closed), np.ones(n)) < 1e-8
 
 
 def test_seed_grid_design_is_made_once_and_read_only():
@@ -88,7 +158,7 @@ def test_seed_parameter_correction_lowers_the_true_error(seed, dim, closed):
         return project_points(pts, c, np.ones(n), t, k, closed)[0].mean()
 
     corrected = error(least_squares_ctrl(pts, n, k, closed))
-    chord = error(least_squares_ctrl(pts, n, k, closed, rounds=0))
+    chord = error(least_squares_ctrl(pts, n, k, closed, rounds=0, even=False))
     assert corrected * 1.4 < chord
 
 
@@ -154,8 +224,14 @@ def test_chunk_size_does_not_change_results():
 def test_search_every_reuses_the_search_whatever_the_chunks():
     """With search_every=8 the search falls on every 8th iteration of the whole run, so
     chunks of 70 (70 % 8 = 6) give the same curves as one chunk; the reused starts get as
-    near the true curve as searching every time (polygons search every iteration)."""
-    pts = spline_points(8, 5, False)
+    near the true curve as searching every time (polygons search every iteration).  The
+    points lie at uneven parameters: at even ones the least-squares seed would be the
+    exact curve from the start, and the search would have nothing to do."""
+    from swarmcurves_jax import make_knots
+
+    ctrl = random_bspline_points(5, 3, False, num_points=200, seed=8)[1]
+    uneven = np.linspace(0, 1, 200) ** 1.5
+    pts = Curve(3, ctrl, np.ones(5), make_knots(5, 3, False)).evaluate(uneven)
     kwargs = dict(cps=5, degrees=(1, 3), iterations=300, refine=False, search_every=8)
     a = fit(pts, chunk_size=300, **kwargs)
     b = fit(pts, chunk_size=70, **kwargs)
@@ -164,7 +240,7 @@ def test_search_every_reuses_the_search_whatever_the_chunks():
     np.testing.assert_array_equal(a.history, b.history)
     every = fit(pts, **{**kwargs, "search_every": 1})
     assert not np.array_equal(a[3, 5].control_points, every[3, 5].control_points)
-    assert a[3, 5].error <= 1.1 * every[3, 5].error  # measured: 1.79e-3 against 1.73e-3
+    assert a[3, 5].error <= 1.1 * every[3, 5].error  # measured: 2.4257e-3 against 2.4255e-3
 
 
 def test_tol_stops_early_and_says_so():
