@@ -83,16 +83,27 @@ def _polynomial_seed(points, n, k, closed, ends, rounds=20, t=None, even=True):
         t, dense = make_knots(n, k, closed), uniform_grid_design(n, k, closed)
     else:
         dense = design_matrix(_seed_grid(closed), t, k, closed=closed)
-    starts = _starts(points, closed, even)
+    best = None
+    for u in _parameterisations(points, closed, t, k, dense, ends, even):
+        fit = _corrected(design_matrix(u, t, k, closed=closed), dense, points, ends, rounds)
+        if best is None or fit[1] < best[1]:  # a tie keeps the earlier start
+            best = fit
+        if best[1] <= EXACT:
+            break  # the points lie on this curve: no later start can do better
+    return best
+
+
+def _parameterisations(points, closed, t, k, dense, ends, even=True):
+    """The seed's starting parameters, the costly arc-length ones made only when asked."""
+    yield from _starts(points, closed, even)
     if even:
-        starts += [
-            _arc_parameters(points, closed, t, k, dense, ends, c) for c in _seams(points, closed)
-        ]
-    fits = [
-        _corrected(design_matrix(u, t, k, closed=closed), dense, points, ends, rounds)
-        for u in starts
-    ]
-    return min(fits, key=lambda fit: fit[1])  # a tie keeps the chord-length fit
+        for seam in _seams(points, closed):
+            yield _arc_parameters(points, closed, t, k, dense, ends, seam)
+
+
+#: A seed whose mean distance bound is at most this (the normalised frame) is exact: the
+#: points lie on it, and no later start or correction round is tried.
+EXACT = 1e-12
 
 
 #: Rounds of :func:`_arc_parameters`: measured on random splines sampled evenly by arc
@@ -213,8 +224,8 @@ def _corrected(b, dense, points, ends, rounds):
         err = np.mean(np.minimum(dist, np.linalg.norm(b @ ctrl - points, axis=1)))
         if err < best_err:  # a correction can also fold the parameters: keep the best
             best, best_err = ctrl, err
-        if last is not None and np.array_equal(j, last):
-            break  # a fixed point: every later round would give this same curve again
+        if best_err <= EXACT or (last is not None and np.array_equal(j, last)):
+            break  # exact, or a fixed point: every later round would give this curve again
         b, last = dense[j], j
         ctrl = _lsq(b, points, ends)
     return best, best_err
