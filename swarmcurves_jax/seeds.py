@@ -54,7 +54,8 @@ def least_squares_ctrl(
     Solved from chord-length parameters, from evenly spaced ones and from the fit's own
     arc length (:func:`_arc_parameters`), each then ``rounds`` times moving every point's
     parameter to its nearest point on the current curve (a 2048-sample grid) and solving
-    again (Hoschek's correction); the curve nearest the points is kept.  Chord lengths
+    again (Hoschek's correction); the curve nearest the points is kept, and an exact one
+    ends the search (points at even parameters skip the arc-length rounds).  Chord lengths
     alone misplace the parameters of looping curves; evenly spaced parameters are exact
     for points a program sampled at even parameter steps, as CAD and drawing programs
     flatten their curves; the arc-length rounds approach the parameters of points spaced
