@@ -66,11 +66,12 @@ def distances(q, basis, points, space, pair, k, foot=None, stale=False, gather=F
     )
 
 
-def foot_starts(q, basis, points, space, pair, k, dense=True):
-    """Where each point's Newton steps start on the curve of position ``q``, in samples:
-    shape (N,) float (:func:`~swarmcurves_jax.fitness.search_starts`)."""
+def foot_starts(q, basis, points, space, pair, k):
+    """The swarm's search: where each point's Newton steps start on the curve of position
+    ``q``, in samples, shape (N,) float (:func:`~swarmcurves_jax.fitness.search_starts`;
+    the polish searches by :func:`polish_search`)."""
     basis = space.basis(q, pair, k, basis)
-    return foot_samples(*geometry(q, space), basis, points, dense)
+    return foot_samples(*geometry(q, space), basis, points, dense=False)
 
 
 def excursion_term(q, basis, polyline: Polyline, space, pair, k, segment=None):

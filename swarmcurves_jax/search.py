@@ -114,9 +114,7 @@ def swarm_program(
                 return jax.vmap(lambda q: mean(q, None))(positions), feet
 
             def searched():
-                return jax.vmap(lambda q: foot_starts(q, basis, points, space, pair, k, False))(
-                    positions
-                )
+                return jax.vmap(lambda q: foot_starts(q, basis, points, space, pair, k))(positions)
 
             stored = (
                 feet if search_every > 1 else jnp.zeros((len(positions), *mask.shape), points.dtype)

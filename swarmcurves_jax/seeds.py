@@ -172,8 +172,8 @@ def least_squares_nurbs(points, n, k, closed, ends=None, t=None):
     spaced by arc length in ``benchmarks/recovery_rates.py``).  A solution with a weight
     that is not positive is dropped; weights are scaled to a geometric mean of 1.
     """
+    ctrl, err = _polynomial_seed(points, n, k, closed, ends, t=t)  # t None: the cached grid
     t = make_knots(n, k, closed) if t is None else t
-    ctrl, err = _polynomial_seed(points, n, k, closed, ends, t=t)
     best = (ctrl, np.ones(n), err)
     for u in _starts(points, closed):
         b = design_matrix(u, t, k, closed=closed)
