@@ -85,7 +85,7 @@ def _polynomial_seed(points, n, k, closed, ends, rounds=20, t=None, even=True):
     else:
         dense = design_matrix(_seed_grid(closed), t, k, closed=closed)
     best = None
-    for u in _parameterisations(points, closed, t, k, dense, ends, even):
+    for u in _parameterisations(points, closed, dense, ends, even):
         fit = _corrected(design_matrix(u, t, k, closed=closed), dense, points, ends, rounds)
         if best is None or fit[1] < best[1]:  # a tie keeps the earlier start
             best = fit
@@ -94,12 +94,14 @@ def _polynomial_seed(points, n, k, closed, ends, rounds=20, t=None, even=True):
     return best
 
 
-def _parameterisations(points, closed, t, k, dense, ends, even=True):
+def _parameterisations(points, closed, dense, ends, even=True):
     """The seed's starting parameters, the costly arc-length ones made only when asked."""
-    yield from _starts(points, closed, even)
+    starts = _starts(points, closed, even)
+    yield from starts
     if even:
-        for seam in _seams(points, closed):
-            yield _arc_parameters(points, closed, t, k, dense, ends, seam)
+        chord = starts[0]
+        for seam in _seams(chord, closed):
+            yield _arc_parameters(points, chord, closed, dense, ends, seam)
 
 
 #: A seed whose mean distance bound is at most this (the normalised frame) is exact: the
@@ -113,24 +115,22 @@ EXACT = 1e-12
 ARC_ROUNDS = 100
 
 
-def _seams(points, closed):
+def _seams(chord, closed):
     """Where the first point lies along the curve, as a fraction of the chord length: at
-    the start; closed, also one closing chord on (the points' order reversed)."""
-    if not closed:
-        return [0.0]
-    seg = np.linalg.norm(np.diff(np.vstack([points, points[:1]]), axis=0), axis=1)
-    return [0.0, seg[-1] / max(np.sum(seg), 1e-300)]
+    the start; closed, also one closing chord on (the points' order reversed).  ``chord``:
+    the points' :func:`chord_parameters`, whose last is one closing chord short of 1."""
+    return [0.0, 1.0 - chord[-1]] if closed else [0.0]
 
 
-def _arc_parameters(points, closed, t, k, dense, ends, seam=0.0):
+def _arc_parameters(points, chord, closed, dense, ends, seam=0.0):
     """Parameters at which the fitted curve's own arc length matches the points' chord
     length (from ``seam``), by fixed-point rounds: for points spaced along the curve (as a
     scan or a resampled outline is), neither chord lengths nor even steps are the curve's
     parameters, but each round's fit has an arc-length map closer to them, and the
     parameters keep the points' order.  The arc length is measured on every fourth
-    sample of the grid (the rounds cost a third less; the seeds' errors as on all)."""
-    frac = chord_parameters(points, closed)
-    frac = (frac + seam) % 1.0 if closed else frac
+    sample of the grid (the rounds cost a third less; the seeds' errors as on all).
+    ``chord``: the points' :func:`chord_parameters`."""
+    frac = (chord + seam) % 1.0 if closed else chord
     grid = _seed_grid(closed)
     every = np.arange(0, len(grid), 4) if closed else np.r_[0 : len(grid) - 1 : 4, len(grid) - 1]
     coarse, at = dense[every], grid[every]
