@@ -1,5 +1,6 @@
 import logging
 import os
+import shutil
 import tempfile
 
 # One compilation cache for the whole run: the workers, the command line's subprocesses
@@ -7,6 +8,7 @@ import tempfile
 # programs; a program read back from the cache is the same executable, so results do not
 # change.  Keyed by the run, so a run never reads an older run's programs.
 _RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID", str(os.getpid()))
+_OWN_CACHE = "JAX_COMPILATION_CACHE_DIR" not in os.environ
 os.environ.setdefault(
     "JAX_COMPILATION_CACHE_DIR", os.path.join(tempfile.gettempdir(), f"swarmcurves-tests-{_RUN}")
 )
@@ -22,6 +24,13 @@ jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE
 settings.register_profile("ci", max_examples=40, deadline=None, derandomize=True)
 settings.register_profile("dev", max_examples=20, deadline=None)
 settings.load_profile("ci" if os.environ.get("CI") else "dev")
+
+
+def pytest_unconfigure(config):
+    """The run's cache folder (tens of MB) goes with the run: removed by the process that
+    ran the session (with xdist, the controller, after every worker has finished)."""
+    if _OWN_CACHE and not hasattr(config, "workerinput"):
+        shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)
 
 
 @pytest.fixture

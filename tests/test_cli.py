@@ -1,4 +1,8 @@
-"""The command line end to end (subprocess, temp folders), and its refusals (exit code 2)."""
+"""The command line end to end (temp folders), and its refusals (exit code 2).
+
+A run that a test needs as a process (the module's entry point, signals, a kill) is a
+subprocess; the others call :func:`swarmcurves_jax.run.main` in the test's process,
+which is what the entry point runs, without a new process's imports and compilations."""
 
 import csv
 import json
@@ -32,6 +36,14 @@ def run(*args, cwd=None, timeout=300):
     )
 
 
+def call(capsys, *args):
+    """``main(args)`` in this process, shaped like :func:`run`'s result."""
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, out, err)
+
+
 @pytest.mark.parametrize(
     "dim,closed,rational,suffix",
     [
@@ -41,7 +53,7 @@ def run(*args, cwd=None, timeout=300):
         (3, True, False, ".xyz"),
     ],
 )
-def test_end_to_end_every_output_reads_back(tmp_path, dim, closed, rational, suffix):
+def test_end_to_end_every_output_reads_back(tmp_path, capsys, dim, closed, rational, suffix):
     pts, _ = random_bspline_points(6, 3, closed, num_points=90, dim=dim, seed=4)
     pts = pts * 30 + 7
     src = tmp_path / f"pts{suffix}"
@@ -66,7 +78,8 @@ def test_end_to_end_every_output_reads_back(tmp_path, dim, closed, rational, suf
         "figures": ["best", "sparsest", "error_vs_cps"],
     }
     (tmp_path / "job.yaml").write_text(yaml.safe_dump(cfg))
-    proc = run(str(tmp_path / "job.yaml"), "--quiet")
+    job = [tmp_path / "job.yaml", "--quiet"]  # the first case as a process, the others in ours
+    proc = run(*map(str, job)) if suffix == ".csv" else call(capsys, *job)
     assert proc.returncode == 0, proc.stderr
     assert "<- best" in proc.stdout and "stopped on the iteration limit (60)" in proc.stdout
     out = tmp_path / "out"
@@ -88,9 +101,9 @@ def test_end_to_end_every_output_reads_back(tmp_path, dim, closed, rational, suf
         assert not (out / "curves.svg").exists() and "no SVG for 3D" in proc.stdout
     for png in ("best.png", "error_vs_cps.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    again = run(str(tmp_path / "job.yaml"), "--quiet")
+    again = call(capsys, *job)
     assert again.returncode == 2 and "pass --force" in again.stderr
-    assert run(str(tmp_path / "job.yaml"), "--quiet", "--force").returncode == 0
+    assert call(capsys, *job, "--force").returncode == 0
 
 
 def test_bare_run_fits_the_builtin_example(capsys):
@@ -135,7 +148,7 @@ def test_bad_config_values(raw, message):
         check_config(raw)
 
 
-def test_bad_configs_and_files_exit_2_with_one_clear_line(tmp_path):
+def test_bad_configs_and_files_exit_2_with_one_clear_line(tmp_path, capsys):
     (tmp_path / "ragged.txt").write_text("x y\n1 2\n3 4 5\n")
     (tmp_path / "nan.txt").write_text("1 2\nnan 4\n")
     (tmp_path / "word.csv").write_text("1,2\n3,four\n")
@@ -166,8 +179,9 @@ def test_bad_configs_and_files_exit_2_with_one_clear_line(tmp_path):
         ),
         ([str(tmp_path / "none.yaml")], "config: no such file"),
     ]
-    for args, message in cases:
-        proc = run(*args, "--iterations", "5", "--quiet", "--out", str(tmp_path / "o"), timeout=120)
+    for i, (args, message) in enumerate(cases):
+        args = [*args, "--iterations", "5", "--quiet", "--out", str(tmp_path / "o")]
+        proc = run(*args, timeout=120) if i == 0 else call(capsys, *args)  # one as a process
         assert proc.returncode == 2, (args, proc.stderr)
         assert message in proc.stderr and proc.stderr.count("\n") == 1, (args, proc.stderr)
         assert not (tmp_path / "o").exists()  # nothing written, nothing started
@@ -302,7 +316,7 @@ def _files(out):
     }
 
 
-def test_a_killed_batch_resumes_to_the_uninterrupted_result(tmp_path):
+def test_a_killed_batch_resumes_to_the_uninterrupted_result(tmp_path, capsys):
     """SIGKILL a batch part way, resume it: the curves done before the kill are kept
     untouched (not fitted twice), the others fitted, and every result equals an
     uninterrupted run's."""
@@ -328,11 +342,11 @@ def test_a_killed_batch_resumes_to_the_uninterrupted_result(tmp_path):
     done = {p.parent.name for p in part.glob("*/summary.json")}
     assert 8 <= len(done) < 32 and not (part / "summary.csv").exists()
     before = _files(part)
-    proc = run(*args, "--out", str(part), "--resume", "--force")
+    proc = call(capsys, *args, "--out", part, "--resume", "--force")
     assert proc.returncode == 2 and "give one" in proc.stderr
-    proc = run(*args, "--out", str(part), "--resume", "--iterations", "31")
+    proc = call(capsys, *args, "--out", part, "--resume", "--iterations", "31")
     assert proc.returncode == 2 and "other values of iterations" in proc.stderr
-    proc = run(*args, "--out", str(part), "--resume")
+    proc = call(capsys, *args, "--out", part, "--resume")
     assert proc.returncode == 0, proc.stderr
     assert "32 of 32 curves in" in proc.stdout
     assert f"({len(done)} kept from the earlier run)" in proc.stdout
@@ -359,7 +373,7 @@ def test_a_killed_batch_resumes_to_the_uninterrupted_result(tmp_path):
     assert rows[0] == rows[1]
 
 
-def test_bad_batch_inputs_exit_2_naming_the_file(tmp_path):
+def test_bad_batch_inputs_exit_2_naming_the_file(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     (tmp_path / "mixed").mkdir()
     (tmp_path / "mixed" / "ok.txt").write_text("0 0\n1 1\n2 0\n3 1\n4 0\n5 1\n")
@@ -375,7 +389,7 @@ def test_bad_batch_inputs_exit_2_naming_the_file(tmp_path):
         (tmp_path / "short", "'tiny': 3 points are too few for 10 control points"),
     ]
     for where, message in cases:
-        proc = run("--input", str(where), "--quiet", "--out", str(tmp_path / "o"), timeout=120)
+        proc = call(capsys, "--input", where, "--quiet", "--out", tmp_path / "o")
         assert proc.returncode == 2, (where, proc.stderr)
         assert message in proc.stderr and proc.stderr.count("\n") == 1, (where, proc.stderr)
         assert not (tmp_path / "o").exists()
