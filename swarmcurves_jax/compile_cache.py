@@ -46,6 +46,7 @@ __all__ = [
     "use_cache",
     "cache_dir",
     "program",
+    "compiled",
 ]
 
 #: The environment variable that moves the cache (a folder) or turns it off (``off``).
@@ -164,6 +165,17 @@ def program(jitted, compiler_options: dict, *args, **static):
         call = jax.jit(run, in_shardings=on, out_shardings=on, compiler_options=compiler_options)
         _programs[key, device] = call
     call.trace(*args).lower()
+    return call
+
+
+def compiled(call, *args):
+    """``call`` (a :func:`program`) compiled now for arguments like ``args``, so that its
+    first run with such arguments does not compile (e.g. in a thread, while other work
+    runs)."""
+    if isinstance(call, functools.partial):  # a traced program: static arguments bound
+        call.func.trace(*args, **call.keywords).lower().compile()
+    else:
+        call.trace(*args).lower().compile()
     return call
 
 

@@ -112,8 +112,9 @@ def launch(
     every chunk.  ``split``: CPU devices (:func:`~swarmcurves_jax.devices.cpu_devices`) to
     deal the swarms over (without a mesh), one program each, run at once from threads; the
     polish is one program, and every result equals the undealt call's.  The polish is
-    queued behind the swarm, so it compiles while the swarm runs, unless
-    ``opts.stage_timings`` asks to time each.
+    queued behind the swarm; its program is traced while the swarm's compiles and
+    compiled while the swarm runs (:class:`_EarlyPolish`), unless ``opts.stage_timings``
+    asks to time each.
     """
     start = time.perf_counter() if start is None else start
     compile_cache.ensure()
@@ -127,13 +128,14 @@ def launch(
     batch = _host_batch(padded, num, keys, pair_ids, opts)
     timings = {"setup": time.perf_counter() - start}  # the host's seeds, boxes and bases
     report = _reporter(batch, opts, callback, bar)
-    stop_reason, interrupted = "iterations", False
+    stop_reason, interrupted, early = "iterations", False, None
     try:
         parts = _deal(batch, split) if split and place.mesh is None else []
         if len(parts) > 1:
             progress, interrupted = run_dealt(batch, parts, split, draws, opts, report, place)
         else:
-            loop = chunks(batch, draws.result, place, opts, threading.Event())
+            early = _EarlyPolish(batch, opts, place)  # made while the swarm compiles
+            loop = chunks(batch, draws.result, place, opts, threading.Event(), early.start)
             progress, interrupted = follow(loop, batch.num, opts, place, report)
     except KeyboardInterrupt:
         progress = None
@@ -148,7 +150,7 @@ def launch(
         timings["swarm"] = time.perf_counter() - start
     polished = None
     if opts.method is not None and stop_reason != "interrupted":
-        polished = _polish(batch, progress, opts, place)
+        polished = _polish(batch, progress, opts, place, early)
     return Launched(preps, opts, place, progress, polished, stop_reason, start, timings)
 
 
@@ -219,10 +221,13 @@ def empty_state(num_curves, num_swarms, num_particles, dim, dtype) -> pso.PSOSta
     )
 
 
-def chunks(batch: Batch, drawn, place: Placement, opts: FitOptions, stop) -> Iterator[Progress]:
+def chunks(
+    batch: Batch, drawn, place: Placement, opts: FitOptions, stop, traced=None
+) -> Iterator[Progress]:
     """The swarm loop of ``batch`` on ``place``: one :class:`Progress` per chunk, queued
     (not waited for), until the iterations are done or ``stop`` is set.  ``drawn()``: the
-    batch's initial draws, waited for only once the program has traced."""
+    batch's initial draws, waited for only once the program has traced; ``traced()``, if
+    given, is called then too (before the program compiles)."""
     dtype, lead = opts.dtype, batch.inputs.seeds.shape[:2]
     feet = ()  # the last search's starts, carried only when a search is reused
     if opts.search_every > 1:
@@ -255,6 +260,8 @@ def chunks(batch: Batch, drawn, place: Placement, opts: FitOptions, stop) -> Ite
                 run = compile_cache.program(
                     swarm_program, SWARM_COMPILER_OPTIONS, *abstract, *args, **static
                 )
+            if traced is not None:
+                traced()
             draws = place.curves(drawn())
         state, feet, info = run(*draws, *args)
         history = progress.history + (info.best_fitness,)
@@ -396,27 +403,69 @@ def _relay(events: queue.Queue, count: int, steps: int, report, merged):
             report(shown, merged(*(x.pop(shown, last[j]) for j, x in enumerate(seen))))
 
 
-def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement):
-    """Queue the polish of every swarm's solution (:mod:`swarmcurves_jax.polish`)."""
-    space, pairs, groups = batch.space, batch.pairs, batch.groups
+def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement, early=None):
+    """Queue the polish of every swarm's solution (:mod:`swarmcurves_jax.polish`), with
+    the program ``early`` (an :class:`_EarlyPolish`) made if it was started."""
     inputs = progress.inputs or place.curves(batch.inputs)
-    args = (
-        progress.state,
-        *inputs,
-        place.shared((batch.pair_ids, polish_bases(pairs, groups, space, opts.dtype))),
-    )
-    run = compile_cache.program(
-        polish_program,
-        CPU_COMPILER_OPTIONS,
-        *args,
-        space=space,
+    args = (progress.state, *inputs, _polish_shared(batch, opts, place))
+    run = early.result() if early is not None else None
+    if run is None:
+        run = compile_cache.program(
+            polish_program, CPU_COMPILER_OPTIONS, *args, **_polish_static(batch, opts, place)
+        )
+    return run(*args)
+
+
+def _polish_shared(batch: Batch, opts: FitOptions, place: Placement):
+    """The polish's arguments every curve shares: the pairs and their span bases."""
+    bases = polish_bases(batch.pairs, batch.groups, batch.space, opts.dtype)
+    return place.shared((batch.pair_ids, bases))
+
+
+def _polish_static(batch: Batch, opts: FitOptions, place: Placement) -> dict:
+    """The polish program's static arguments (what its trace depends on besides shapes)."""
+    return dict(
+        space=batch.space,
         method=opts.method,
         seeded=opts.init == "lsq",
-        groups=groups,
+        groups=batch.groups,
         mesh=place.mesh,
         batch=place.batch,
     )
-    return run(*args)
+
+
+class _EarlyPolish:
+    """The polish program of a call, traced, lowered and compiled in a thread from the
+    arguments' shapes once the swarm program has traced: its tracing then overlaps the
+    swarm's compilation and its compilation the swarm's run, instead of both waiting
+    for the swarm's last chunk to be queued.  Not started without a polish, for a mesh
+    (its programs are traced apart), or when ``stage_timings`` times each stage."""
+
+    def __init__(self, batch: Batch, opts: FitOptions, place: Placement):
+        self.batch, self.opts, self.place = batch, opts, place
+        self.future: Future | None = None
+
+    def start(self) -> None:
+        opts, place = self.opts, self.place
+        if opts.method is None or place.mesh is not None or opts.stage_timings:
+            return
+        pool = ThreadPoolExecutor(1)
+        self.future = pool.submit(self._make)
+        pool.shutdown(wait=False)
+
+    def _make(self):
+        batch, opts, place = self.batch, self.opts, self.place
+        abstract = lambda a: place.abstract(np.shape(a), np.asarray(a).dtype)  # noqa: E731
+        shapes = jax.tree_util.tree_map(abstract, (batch.state, batch.inputs))
+        args = (shapes[0], *shapes[1], _polish_shared(batch, opts, place))
+        static = _polish_static(batch, opts, place)
+        with TRACING:
+            run = compile_cache.program(polish_program, CPU_COMPILER_OPTIONS, *args, **static)
+        return compile_cache.compiled(run, *args)
+
+    def result(self):
+        """The program, or None if it was not started."""
+        return None if self.future is None else self.future.result()
 
 
 def _reporter(batch: Batch, opts: FitOptions, callback, bar):

@@ -30,6 +30,7 @@ def test_a_call_of_the_same_kind_compiles_nothing(compiles_during):
     kwargs = dict(cps=range(4, 7), degrees=(2, 3), particles=16)
     first = compiles_during(lambda: fit(pts, iterations=60, **kwargs))
     assert sum("swarm_program" in m for m in first) == 1
+    assert sum("polish_program" in m for m in first) == 1  # made early, in a thread, once
     fewer = np.linspace(0, 1, 146)
     again = {
         "seed": lambda: fit(pts, iterations=60, seed=7, **kwargs),
