@@ -27,8 +27,10 @@ CLOSED = [False] * 5 + [True, False]
 @pytest.fixture(scope="module")
 def client():
     with (
+        # ":0": a free port. With None the scheduler's HTTP server still takes 8787, and
+        # a cluster of the other test worker then fails to start.
         LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
         ) as cluster,
         Client(cluster) as client,
     ):
