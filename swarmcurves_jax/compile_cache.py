@@ -46,7 +46,6 @@ __all__ = [
     "use_cache",
     "cache_dir",
     "program",
-    "compiled",
 ]
 
 #: The environment variable that moves the cache (a folder) or turns it off (``off``).
@@ -133,9 +132,10 @@ def ensure() -> None:
 _programs: dict[tuple, object] = {}
 
 
-def program(jitted, compiler_options: dict, *args, **static):
+def program(jitted, compiler_options: dict, *args, compile_now: bool = False, **static):
     """``functools.partial(jitted, **static)`` for arguments like ``args`` (arrays or
-    :class:`jax.ShapeDtypeStruct`), traced and lowered now.
+    :class:`jax.ShapeDtypeStruct`), traced and lowered now; ``compile_now``: compiled too,
+    so that its first run does not compile (e.g. made in a thread while other work runs).
 
     With a cache folder and one device per program (no ``mesh``), it is the exported
     program: read from the folder, or exported there once (atomically); the call is then
@@ -143,7 +143,7 @@ def program(jitted, compiler_options: dict, *args, **static):
     """
     folder = cache_dir()
     if folder is None or static.get("mesh") is not None:
-        jitted.trace(*args, **static).lower()
+        _prepare(jitted.trace(*args, **static), compile_now)
         return functools.partial(jitted, **static)
     key = _key(jitted, args, static)
     device = _device(args)
@@ -164,19 +164,15 @@ def program(jitted, compiler_options: dict, *args, **static):
         run = functools.wraps(jitted)(lambda *a: exported.call(*a))  # logs name the program
         call = jax.jit(run, in_shardings=on, out_shardings=on, compiler_options=compiler_options)
         _programs[key, device] = call
-    call.trace(*args).lower()
+    _prepare(call.trace(*args), compile_now)
     return call
 
 
-def compiled(call, *args):
-    """``call`` (a :func:`program`) compiled now for arguments like ``args``, so that its
-    first run with such arguments does not compile (e.g. in a thread, while other work
-    runs)."""
-    if isinstance(call, functools.partial):  # a traced program: static arguments bound
-        call.func.trace(*args, **call.keywords).lower().compile()
-    else:
-        call.trace(*args).lower().compile()
-    return call
+def _prepare(traced, compile_now: bool) -> None:
+    """Lower a trace (JAX keeps the lowering for the call), and compile it if asked."""
+    lowered = traced.lower()
+    if compile_now:
+        lowered.compile()
 
 
 def _key(jitted, args, static) -> str:

@@ -158,8 +158,7 @@ def _start_draws(keys, pair_ids, space: Layout, opts: FitOptions) -> Future:
     """Every swarm's run key and initial draws (:func:`~swarmcurves_jax.search.initial_draws`),
     compiled and run in a thread while the host builds the seeds and the swarm program
     traces (XLA compiles outside Python's lock).  The draws stay on the device."""
-    pool = ThreadPoolExecutor(1)
-    draws = pool.submit(
+    return _in_thread(
         initial_draws,
         keys,
         pair_ids,
@@ -167,8 +166,14 @@ def _start_draws(keys, pair_ids, space: Layout, opts: FitOptions) -> Future:
         size=space.size,
         dtype=opts.dtype,
     )
+
+
+def _in_thread(fn, *args, **kwargs) -> Future:
+    """``fn(*args, **kwargs)`` started in a thread of its own; its result as a future."""
+    pool = ThreadPoolExecutor(1)
+    future = pool.submit(fn, *args, **kwargs)
     pool.shutdown(wait=False)
-    return draws
+    return future
 
 
 def _host_batch(padded, num: int, keys, pair_ids, opts: FitOptions) -> Batch:
@@ -407,7 +412,7 @@ def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement
     """Queue the polish of every swarm's solution (:mod:`swarmcurves_jax.polish`), with
     the program ``early`` (an :class:`_EarlyPolish`) made if it was started."""
     inputs = progress.inputs or place.curves(batch.inputs)
-    args = (progress.state, *inputs, _polish_shared(batch, opts, place))
+    args = (progress.state, *inputs, place.shared(_polish_shared(batch, opts)))
     run = early.result() if early is not None else None
     if run is None:
         run = compile_cache.program(
@@ -416,10 +421,10 @@ def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement
     return run(*args)
 
 
-def _polish_shared(batch: Batch, opts: FitOptions, place: Placement):
-    """The polish's arguments every curve shares: the pairs and their span bases."""
-    bases = polish_bases(batch.pairs, batch.groups, batch.space, opts.dtype)
-    return place.shared((batch.pair_ids, bases))
+def _polish_shared(batch: Batch, opts: FitOptions):
+    """The polish's arguments every curve shares, on the host: the pairs and their span
+    bases."""
+    return batch.pair_ids, polish_bases(batch.pairs, batch.groups, batch.space, opts.dtype)
 
 
 def _polish_static(batch: Batch, opts: FitOptions, place: Placement) -> dict:
@@ -449,19 +454,20 @@ class _EarlyPolish:
         opts, place = self.opts, self.place
         if opts.method is None or place.mesh is not None or opts.stage_timings:
             return
-        pool = ThreadPoolExecutor(1)
-        self.future = pool.submit(self._make)
-        pool.shutdown(wait=False)
+        self.future = _in_thread(self._make)
 
     def _make(self):
         batch, opts, place = self.batch, self.opts, self.place
         abstract = lambda a: place.abstract(np.shape(a), np.asarray(a).dtype)  # noqa: E731
-        shapes = jax.tree_util.tree_map(abstract, (batch.state, batch.inputs))
-        args = (shapes[0], *shapes[1], _polish_shared(batch, opts, place))
-        static = _polish_static(batch, opts, place)
-        with TRACING:
-            run = compile_cache.program(polish_program, CPU_COMPILER_OPTIONS, *args, **static)
-        return compile_cache.compiled(run, *args)
+        state, inputs, shared = jax.tree_util.tree_map(
+            abstract, (batch.state, batch.inputs, _polish_shared(batch, opts))
+        )
+        args, static = (state, *inputs, shared), _polish_static(batch, opts, place)
+        with TRACING:  # traced and lowered under the lock; compiled (the kept lowering) outside
+            compile_cache.program(polish_program, CPU_COMPILER_OPTIONS, *args, **static)
+        return compile_cache.program(
+            polish_program, CPU_COMPILER_OPTIONS, *args, compile_now=True, **static
+        )
 
     def result(self):
         """The program, or None if it was not started."""
