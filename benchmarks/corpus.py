@@ -200,8 +200,10 @@ def dask_vs_local(count, settings) -> dict:
     local = fit_many(sets, **options)
     local_s = time.perf_counter() - start
     with (
+        # ":0": a free port (None still binds the scheduler's HTTP server to 8787, which a
+        # dashboard or another cluster on this machine may hold)
         LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
         ) as cluster,
         Client(cluster) as client,
     ):
