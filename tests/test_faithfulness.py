@@ -13,7 +13,7 @@ from swarmcurves_jax.excursions import data_segments
 
 def largest_allowance(points: np.ndarray, closed: bool) -> float:
     """The most the fitness lets a curve stray from any segment of the data polyline
-    unpenalised: the sagitta its turning allows, a tenth of it, and the data's scatter
+    unpenalised: the sagitta its turning allows, three tenths of it, and the data's scatter
     (:data:`swarmcurves_jax.excursions.ALLOWANCE_BASE`)."""
     line = data_segments(jnp.asarray(points), jnp.ones(len(points)), closed)
     a2 = np.asarray(line.allowance2)
