@@ -41,7 +41,7 @@ class Polyline(NamedTuple):
 #: allowance, and a loop or a spike leaves it.  The three tenths leave room for a curve
 #: with fewer control points than the data need, which cuts across their turns by about
 #: its own error: with a tenth the term fought the data there (the paper's f2 at 19
-#: control points: data error 4.7e-4 against 3.7e-4, the largest deviation no smaller;
+#: control points: data error 4.7e-4 against 3.7e-4, its largest deviation no smaller;
 #: ``benchmarks/faithfulness.py``).
 ALLOWANCE_BASE = 0.3
 

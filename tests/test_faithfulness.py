@@ -21,7 +21,7 @@ def largest_allowance(points: np.ndarray, closed: bool) -> float:
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=list(HealthCheck))
-@example(n=5, closed=True, dim=2, sigma=0.0, seed=46)  # 4 cp: the excursion 2.004 max_error + A
+@example(n=5, closed=True, dim=2, sigma=0.0, seed=46)  # 4 cp: the excursion 1.95 max_error + A
 @given(
     n=st.integers(5, 8),
     closed=st.booleans(),
@@ -38,7 +38,7 @@ def test_every_solution_stays_within_its_error_plus_the_polylines_allowance(
     curve the data sample, which lies within ``A`` of the polyline; the rest leaves room
     for a curve that crosses between two points, and for one with fewer control points
     than the data's curve, which cuts across its turns (closed, 5 control points fitted
-    with 4: 2.004 max_error + A, the example pinned above).  A loop or a spike exceeds it
+    with 4: 1.95 max_error + A, the example pinned above).  A loop or a spike exceeds it
     by orders of magnitude (the polish's spikes: 0.28 and 6.8 half-extents at errors
     below 1e-3)."""
     pts, _ = random_bspline_points(n, 3, closed, num_points=120, dim=dim, seed=seed)
