@@ -13,8 +13,8 @@ from swarmcurves_jax.excursions import data_segments
 
 def largest_allowance(points: np.ndarray, closed: bool) -> float:
     """The most the fitness lets a curve stray from any segment of the data polyline
-    unpenalised: the sagitta its turning allows, three tenths of it, and the data's scatter
-    (:data:`swarmcurves_jax.excursions.ALLOWANCE_BASE`)."""
+    unpenalised: the sagitta its turning allows, three tenths of the segment
+    (:data:`swarmcurves_jax.excursions.ALLOWANCE_BASE`) and the data's scatter."""
     line = data_segments(jnp.asarray(points), jnp.ones(len(points)), closed)
     a2 = np.asarray(line.allowance2)
     return float(np.sqrt(np.max(a2[np.isfinite(a2)])))
