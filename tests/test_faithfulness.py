@@ -20,8 +20,8 @@ def largest_allowance(points: np.ndarray, closed: bool) -> float:
     return float(np.sqrt(np.max(a2[np.isfinite(a2)])))
 
 
-@settings(max_examples=6, deadline=None, suppress_health_check=list(HealthCheck))
-@example(n=5, closed=True, dim=2, sigma=0.0, seed=46)  # 4 cp: the excursion 1.95 max_error + A
+@settings(max_examples=8, deadline=None, suppress_health_check=list(HealthCheck))
+@example(n=5, closed=True, dim=2, sigma=0.0, seed=46)  # 4 cp: the excursion 1.11 max_error + A
 @given(
     n=st.integers(5, 8),
     closed=st.booleans(),
@@ -38,7 +38,8 @@ def test_every_solution_stays_within_its_error_plus_the_polylines_allowance(
     curve the data sample, which lies within ``A`` of the polyline; the rest leaves room
     for a curve that crosses between two points, and for one with fewer control points
     than the data's curve, which cuts across its turns (closed, 5 control points fitted
-    with 4: 1.95 max_error + A, the example pinned above).  A loop or a spike exceeds it
+    with 4: 1.11 max_error + A, the example pinned above, and 1.95 when fitted at 4-6
+    control points alone, whose rounding differs).  A loop or a spike exceeds it
     by orders of magnitude (the polish's spikes: 0.28 and 6.8 half-extents at errors
     below 1e-3)."""
     pts, _ = random_bspline_points(n, 3, closed, num_points=120, dim=dim, seed=seed)
@@ -47,7 +48,8 @@ def test_every_solution_stays_within_its_error_plus_the_polylines_allowance(
         norm = normal_noise(norm, sigma, seed=seed, closed=closed)
     elif sigma:
         norm = norm + np.random.default_rng(seed).normal(0.0, sigma, norm.shape)
-    result = fit(norm, cps=[n - 1, n, n + 1], closed=closed, iterations=300, seed=seed)
+    # every n fitted at the same counts (around each n's own): one program per layout
+    result = fit(norm, cps=range(4, 10), closed=closed, iterations=300, seed=seed)
     bound_extra = largest_allowance(result.normalised(result.points), closed)
     for c in result:
         bound = 3 * c.max_error + bound_extra

@@ -55,7 +55,7 @@ def test_nearest_sample_is_argmin_of_segment_distance(seed, num, dim):
     s = rng.uniform(-1, 1, (num, dim)).astype(np.float32)
     tang = rng.uniform(-0.05, 0.05, (num, dim)).astype(np.float32)
     tang[rng.uniform(size=num) < 0.2] = 0.0  # a sample where the curve stands still
-    j = np.asarray(nearest_sample(jnp.asarray(pts), jnp.asarray(s), jnp.asarray(tang)))
+    j = np.asarray(jax.jit(nearest_sample)(jnp.asarray(pts), jnp.asarray(s), jnp.asarray(tang)))
     assert j.min() >= 0 and j.max() < num
     diff = pts[:, None] - s[None]
     along = np.sum(diff * tang[None], -1)
@@ -64,7 +64,7 @@ def test_nearest_sample_is_argmin_of_segment_distance(seed, num, dim):
     d2 = np.sum((diff - sc[..., None] * tang[None]) ** 2, -1)
     # the packed search may break near-ties differently: compare distances, not indices
     np.testing.assert_allclose(d2[np.arange(len(pts)), j], d2.min(axis=1), rtol=1e-4, atol=1e-12)
-    start = np.asarray(search_starts(jnp.asarray(pts), jnp.asarray(s), jnp.asarray(tang)))
+    start = np.asarray(jax.jit(search_starts)(*(jnp.asarray(x) for x in (pts, s, tang))))
     if starts_on_segment(num, dim):
         np.testing.assert_allclose(start, j + 0.5 + 0.5 * sc[np.arange(len(pts)), j], atol=2e-5)
     else:
@@ -93,10 +93,15 @@ def test_polyline_distances_are_exact(seed, num, dim):
     pts = a[m] + s * (b[m] - a[m]) + rng.normal(0, 10.0 ** rng.uniform(-6, 0, (60, 1)), (60, dim))
     pts = np.r_[pts, verts].astype(np.float32)
     mid, half = ((a + b) / 2).astype(np.float32), ((b - a) / 2).astype(np.float32)
-    got = np.asarray(polyline_distances(jnp.asarray(pts), jnp.asarray(mid), jnp.asarray(half)))
+    got = np.asarray(jax.jit(polyline_distances)(*(jnp.asarray(x) for x in (pts, mid, half))))
     mid, half = mid.astype(np.float64), half.astype(np.float64)  # the segments it sees
     exact = _segment_distances(pts, mid - half, mid + half).min(1)
     np.testing.assert_allclose(got, exact, rtol=2e-6, atol=5e-7)  # float32 offsets
+
+
+@jax.jit
+def _excess2_at_nearest(*args):
+    return excess2_at(*args, nearest_segments(*args))
 
 
 @given(st.integers(0, 1000), st.sampled_from([1, 16, 17, 200]), st.sampled_from([2, 3]))
@@ -115,8 +120,8 @@ def test_min_excess2_is_the_smallest_distance_beyond_each_allowance(seed, num, d
     d = _segment_distances(pts, mid - half, mid + half) ** 2 - allow2[None]
     exact = d.min(1)
     args = [jnp.asarray(x, jnp.float32) for x in (pts, mid, half, allow2)]
-    fused = np.asarray(min_excess2(*args))
-    searched = np.asarray(excess2_at(*args, nearest_segments(*args)))
+    fused = np.asarray(jax.jit(min_excess2)(*args))
+    searched = np.asarray(_excess2_at_nearest(*args))
     for got in (fused, searched):
         np.testing.assert_allclose(got, exact, rtol=1e-5, atol=2e-6)
 
@@ -391,14 +396,15 @@ def test_fitness_on_smooth_data_is_near_exact():
     from swarmcurves_jax.seeds import least_squares_ctrl
 
     pts, _, _ = normalise(analytic_points("f4"))
+    dist = jax.jit(point_distances, static_argnames="degree")  # padded alike: once per degree
     for k in (1, 2, 3):
         samples = default_num_samples([(k, n) for n in range(4, 11)], False)  # as fit's group
         for n in range(4, 11):
             ctrl = least_squares_ctrl(pts, n, k, False)
-            basis = as_jax(make_span_basis(n, k, False, samples))
-            est = point_distances(
-                jnp.asarray(ctrl, jnp.float32), None, basis, jnp.asarray(pts, jnp.float32), degree=k
-            )
+            basis = as_jax(make_span_basis(n, k, False, samples, 10, 10 - k))  # as fit pads
+            padded = np.zeros((10, 2), np.float32)
+            padded[:n] = ctrl
+            est = dist(jnp.asarray(padded), None, basis, jnp.asarray(pts, jnp.float32), degree=k)
             exact, _ = project_points(pts, ctrl, np.ones(n), make_knots(n, k, False), k, False)
             est = np.asarray(est)
             assert np.all(est >= exact - 2e-6)

@@ -1,6 +1,9 @@
 """The two-sided measures (host) and the excursion penalty (device) on curves whose answers
 are known in closed form."""
 
+import functools
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -95,9 +98,14 @@ def _penalty(curve: Curve, points, closed, pad=0):
     mask = np.r_[np.ones(len(points)), np.zeros(pad)]
     basis = make_span_basis(curve.n_ctrl, curve.degree, closed, 64)
     basis = type(basis)(*(jnp.asarray(a) for a in basis))
-    line = data_segments(jnp.asarray(pts), jnp.asarray(mask), closed)
-    samples, tangents = curve_samples(jnp.asarray(curve.control_points), None, basis)
-    return float(excursion(samples, tangents, basis, line))
+    return float(_excursion(jnp.asarray(curve.control_points), basis, pts, mask, closed))
+
+
+@functools.partial(jax.jit, static_argnames="closed")
+def _excursion(ctrl, basis, pts, mask, closed):
+    line = data_segments(pts, mask, closed)
+    samples, tangents = curve_samples(ctrl, None, basis)
+    return excursion(samples, tangents, basis, line)
 
 
 def test_the_penalty_is_zero_on_the_curve_the_data_sample_and_sees_a_spike():

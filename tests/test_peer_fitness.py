@@ -50,7 +50,7 @@ def test_peers_compute_fits_fitness(speed, where):
         def in_jax_numpy(x, b, k=k):
             return speed.numpy_fitness(x, b, data, k, xp=jnp)[0]
 
-        ours = jax.vmap(kernel)(jnp.asarray(q))
+        ours = jax.jit(jax.vmap(kernel))(jnp.asarray(q))
         in_numpy, _ = speed.numpy_fitness(q[:, : 2 * n], one, points, k)
         in_jax = jax.jit(in_jax_numpy)(jnp.asarray(q), on_device)
         np.testing.assert_allclose(in_numpy, ours, rtol=1e-4, err_msg=f"NumPy, degree {k}")
