@@ -257,10 +257,18 @@ def _write_curves(folder):
 BATCH_ARGS = ("--cps", "4-5", "--iterations", "30", "--particles", "16", "--quiet")
 
 
+def _quick(folder, text=""):
+    """A config that adds ``refine: none`` to ``text``: the batch tests check what is read
+    and written, and fit_many's polish has its own tests."""
+    path = folder / "quick.yaml"
+    path.write_text(text + "refine: none\n")
+    return str(path)
+
+
 def test_batch_folder_writes_a_result_per_curve_and_a_summary(tmp_path, capsys):
     names = _write_curves(tmp_path / "scans")
-    out = tmp_path / "o"
-    assert main(["--input", str(tmp_path / "scans"), *BATCH_ARGS, "--out", str(out)]) == 0
+    out, job = tmp_path / "o", _quick(tmp_path)
+    assert main([job, "--input", str(tmp_path / "scans"), *BATCH_ARGS, "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "3 of 3 curves in" in printed and "padding:" in printed
     with open(out / "summary.csv") as fh:
@@ -276,11 +284,11 @@ def test_batch_folder_writes_a_result_per_curve_and_a_summary(tmp_path, capsys):
         assert float(row["best_error"]) == pytest.approx(best.error, rel=1e-6)
         assert curves[0].dim == (3 if row["input"] == "helix" else 2)
     # the same run again is refused before any work; a glob picks its files only
-    assert main(["--input", str(tmp_path / "scans"), *BATCH_ARGS, "--out", str(out)]) == 2
+    assert main([job, "--input", str(tmp_path / "scans"), *BATCH_ARGS, "--out", str(out)]) == 2
     assert "already holds summary.csv" in capsys.readouterr().err
     glob_out = tmp_path / "g"
     pattern = str(tmp_path / "scans" / "*.csv")
-    assert main(["--input", pattern, *BATCH_ARGS, "--out", str(glob_out)]) == 0
+    assert main([job, "--input", pattern, *BATCH_ARGS, "--out", str(glob_out)]) == 0
     assert sorted(p.name for p in glob_out.iterdir()) == ["arc", "run.json", "summary.csv"]
     assert json.loads((glob_out / "arc" / "summary.json").read_text())["input"] == "arc"
 
@@ -288,7 +296,7 @@ def test_batch_folder_writes_a_result_per_curve_and_a_summary(tmp_path, capsys):
 def test_batch_from_one_npz_and_from_an_outline_pattern(tmp_path, capsys):
     s = np.linspace(0, 1, 50)
     np.savez(tmp_path / "set.npz", left=np.c_[s, s**2], right=np.c_[s, 1 - s**2])
-    assert main(["--input", str(tmp_path / "set.npz"), *BATCH_ARGS]) == 0
+    assert main([_quick(tmp_path), "--input", str(tmp_path / "set.npz"), *BATCH_ARGS]) == 0
     printed = capsys.readouterr().out
     assert "left" in printed and "right" in printed and "2 of 2 curves" in printed
     (tmp_path / "outlines").mkdir()
@@ -301,8 +309,7 @@ def test_batch_from_one_npz_and_from_an_outline_pattern(tmp_path, capsys):
         rim_closed=np.array(False),
     )
     args = ["--input", "outline:r*", *BATCH_ARGS, "--out", str(tmp_path / "o")]
-    (tmp_path / "job.yaml").write_text(f"data_dir: {tmp_path}\n")
-    assert main([str(tmp_path / "job.yaml"), *args]) == 0
+    assert main([_quick(tmp_path, f"data_dir: {tmp_path}\n"), *args]) == 0
     with open(tmp_path / "o" / "summary.csv") as fh:
         rows = {r["input"]: r for r in csv.DictReader(fh)}
     assert rows["ring"]["closed"] == "True" and rows["rim"]["closed"] == "False"
@@ -324,8 +331,8 @@ def test_a_killed_batch_resumes_to_the_uninterrupted_result(tmp_path, capsys):
     s = np.linspace(0, 1, 50)
     curves = {f"c{i:02d}": np.c_[s, np.sin((2 + i / 8) * s)] for i in range(32)}
     np.savez(tmp_path / "set.npz", **curves)
-    (tmp_path / "job.yaml").write_text("figures: []\nexports: [json, npz]\n")
-    args = [str(tmp_path / "job.yaml"), "--input", str(tmp_path / "set.npz"), *BATCH_ARGS]
+    job = _quick(tmp_path, "figures: []\nexports: [json, npz]\n")
+    args = [job, "--input", str(tmp_path / "set.npz"), *BATCH_ARGS]
     args += ["--batch-size", "2"]
     whole, part = tmp_path / "whole", tmp_path / "part"
     assert main([*args, "--out", str(whole)]) == 0
