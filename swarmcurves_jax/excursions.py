@@ -76,9 +76,26 @@ def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
     off = vec[before] - along[:, None] * chord
     scatter = jnp.where(before != idx, jnp.sqrt(jnp.sum(off * off, axis=1)), 0.0)
     rough = jnp.maximum(scatter, scatter[after])
-    allowance = jnp.sqrt(len2) * (ALLOWANCE_BASE + 0.5 * jnp.tan(0.25 * bend)) + rough
+    length = jnp.sqrt(len2)
+    allowance = length * (ALLOWANCE_BASE + 0.5 * jnp.tan(0.25 * bend)) + rough
     allowance2 = jnp.where(idx < segments, allowance * allowance, -jnp.inf)
-    return Polyline(points + 0.5 * vec, 0.5 * vec, allowance2)
+    start, end = _inside_the_ends(points, nxt, unit, length, allowance, idx, last, closed)
+    half = 0.5 * (end - start)
+    return Polyline(start + half, half, allowance2)
+
+
+def _inside_the_ends(points, nxt, unit, length, allowance, idx, last, closed: bool):
+    """Each segment's ends; an open polyline's first segment starts, and its last ends,
+    its allowance inside the data's end point (at most its length), so that the allowance
+    stops at the end point.  The curve is pinned there and has no sagitta to make beyond
+    it: with the allowance reaching past the end, an over-fitted curve hooked back at an
+    end unpenalised (a random cubic of 7 control points fitted with 8: 0.047 past the end
+    at a data error of 3.9e-4)."""
+    if closed:
+        return points, nxt
+    cut_start = jnp.where(idx == 0, jnp.minimum(allowance, length), 0.0)
+    cut_end = jnp.where(idx == last, jnp.minimum(allowance, length - cut_start), 0.0)
+    return points + cut_start[:, None] * unit, nxt - cut_end[:, None] * unit
 
 
 def sample_excursions(
