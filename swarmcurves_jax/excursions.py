@@ -25,7 +25,8 @@ class Polyline(NamedTuple):
     its end (the segment is ``centre + s * half``, ``|s| <= 1``, as the fitness's tangent
     segments are) and ``allowance2`` (B,), the square of how far a curve may stray from it
     unpenalised (``-inf`` on rows that are no segment, so that none of them is ever the
-    nearest)."""
+    nearest).  An open polyline's first and last rows stop short of its end points by
+    their allowance, so that the allowance ends there (:func:`data_segments`)."""
 
     centre: jax.Array
     half: jax.Array
@@ -48,7 +49,8 @@ ALLOWANCE_BASE = 0.3
 
 def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
     """The :class:`Polyline` through the real points (``mask`` 1; padding after them), in
-    order, back to the first for a ``closed`` curve."""
+    order, back to the first for a ``closed`` curve; an open one's end segments shortened
+    by their allowance (:func:`_inside_the_ends`)."""
     size = points.shape[0]
     count = jnp.sum(mask).astype(jnp.int32)
     idx = jnp.arange(size)
