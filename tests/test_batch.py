@@ -128,13 +128,15 @@ def test_one_compiled_program_per_bucket(compiles_during):
 
 
 def test_tol_stops_each_curve_as_if_alone():
-    line = np.c_[np.linspace(0, 1, 40), np.linspace(0, 2, 40)]
-    wave = np.c_[np.linspace(0, 1, 40), np.sin(9 * np.linspace(0, 1, 40))]
-    opts = dict(OPTS, iterations=400, chunk_size=20, tol=1e-4)
+    """Two curves of 64 points: the programs of :func:`_sets`' bucket of 64."""
+    s = np.linspace(0, 1, 64)
+    line, wave = np.c_[s, 2 * s], np.c_[s, np.sin(9 * s)]
+    opts = dict(OPTS, iterations=400, tol=1e-4)
     many = fit_many([line, wave], **opts)
     for points, result in zip([line, wave], many):
         _same(fit(points, **opts), result)
     assert many[0].stop_reason == "tol" and many[0].history.shape[1] < 400
+    assert many[1].stop_reason == "iterations"
 
 
 def _run_script(code, env_extra, timeout=300):
@@ -273,8 +275,9 @@ DEALT = dict(cps=range(4, 8), degrees=3, iterations=60, particles=16, seed=0)
 
 
 def _dealt_sets():
-    """Random cubics of 6 control points, 150 and 190 points."""
-    return [random_bspline_points(6, 3, num_points=n, seed=n)[0] for n in (150, 190)]
+    """Random cubics of 6 control points, 150 and 156 points: one bucket, so each process
+    compiles one set of programs for both."""
+    return [random_bspline_points(6, 3, num_points=n, seed=n)[0] for n in (150, 156)]
 
 
 def test_any_count_of_cpu_devices_gives_the_same_curves():

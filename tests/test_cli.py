@@ -190,13 +190,13 @@ def test_bad_configs_and_files_exit_2_with_one_clear_line(tmp_path, capsys):
 
 def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
     (tmp_path / "outlines").mkdir()
-    ring = np.c_[np.cos(np.linspace(0, 6, 60)), np.sin(np.linspace(0, 6, 60))]
+    ring = np.c_[np.cos(np.linspace(0, 6, 40)), np.sin(np.linspace(0, 6, 40))]
     np.savez(tmp_path / "outlines" / "outlines.npz", ring_points=ring, ring_closed=np.array(True))
     (tmp_path / "job.yaml").write_text(
         f"input: outline:ring\ndata_dir: {tmp_path}\ncps: 5\niterations: 20\n"
     )
     assert main([str(tmp_path / "job.yaml"), "--quiet"]) == 0
-    assert "60 points from outline:ring, closed" in capsys.readouterr().out
+    assert "40 points from outline:ring, closed" in capsys.readouterr().out
     (tmp_path / "job.yaml").write_text(f"input: outline:square\ndata_dir: {tmp_path}\n")
     assert main([str(tmp_path / "job.yaml"), "--quiet"]) == 2
     err = capsys.readouterr().err
@@ -300,7 +300,7 @@ def test_batch_from_one_npz_and_from_an_outline_pattern(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "left" in printed and "right" in printed and "2 of 2 curves" in printed
     (tmp_path / "outlines").mkdir()
-    ring = np.c_[np.cos(np.linspace(0, 6, 60)), np.sin(np.linspace(0, 6, 60))]
+    ring = np.c_[np.cos(np.linspace(0, 6, 40)), np.sin(np.linspace(0, 6, 40))]
     np.savez(
         tmp_path / "outlines" / "outlines.npz",
         ring_points=ring,

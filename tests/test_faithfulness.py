@@ -1,5 +1,6 @@
 """Fits stay with the data both ways: no loops, spikes or excursions between the points."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -10,12 +11,14 @@ from swarmcurves_jax import fit, normalise
 from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
 from swarmcurves_jax.excursions import data_segments
 
+_segments = jax.jit(data_segments, static_argnums=2)  # one compilation per shape
+
 
 def largest_allowance(points: np.ndarray, closed: bool) -> float:
     """The most the fitness lets a curve stray from any segment of the data polyline
     unpenalised: the sagitta its turning allows, three tenths of the segment
     (:data:`swarmcurves_jax.excursions.ALLOWANCE_BASE`) and the data's scatter."""
-    line = data_segments(jnp.asarray(points), jnp.ones(len(points)), closed)
+    line = _segments(jnp.asarray(points), jnp.ones(len(points)), closed)
     a2 = np.asarray(line.allowance2)
     return float(np.sqrt(np.max(a2[np.isfinite(a2)])))
 

@@ -108,13 +108,13 @@ def test_free_knots_beat_uniform_knots_where_curvature_is_uneven():
     fixed = fit(pts, cps=[11, 15], iterations=1000)
     free = fit(pts, cps=[11, 15], iterations=1000, free_knots=True)
     for n in (11, 15):
-        assert free[3, n].error < fixed[3, n].error / 2  # measured: 3x and 13x
+        assert free[3, n].error < fixed[3, n].error / 2  # measured: 4.0x and 3.2x
     assert np.min(np.diff(free[3, 15].knots[4:-4])) < 0.5 / 12  # knots gathered
 
 
 def test_free_knot_curves_round_trip_and_export(tmp_path):
-    result = fit(_non_uniform_cubic(), cps=[6, 7], iterations=100, free_knots=True)
-    curve = result[3, 7]
+    # the program of the open reversed-input test below
+    curve = fit(_non_uniform_cubic(), cps=[9], iterations=200, free_knots=True)[3, 9]
     again = Curve.from_dict(curve.to_dict())
     np.testing.assert_array_equal(again.knots, curve.knots)
     u = np.linspace(0, 1, 50)

@@ -49,6 +49,7 @@ def machine() -> str:
 def calls():
     """name -> a function returning the FitResults of one call."""
     closed_pts = random_bspline_points(7, 3, closed=True, num_points=90, seed=41)[0]
+    closed_80 = random_bspline_points(7, 3, closed=True, num_points=80, seed=41)[0]
     return {
         "open": lambda: [fit(analytic_points("f4", 120), cps=[5, 7], degrees=[1, 3], **SHORT)],
         "closed": lambda: [fit(closed_pts, cps=[6, 8], degrees=3, closed=True, seed=3, **SHORT)],
@@ -63,8 +64,9 @@ def calls():
                 **SHORT,
             )
         ],
+        # the program of tests/test_free_knots.py's open curves
         "free_knots": lambda: [
-            fit(analytic_points("f1", 100), cps=[7], degrees=3, free_knots=True, seed=9, **SHORT)
+            fit(analytic_points("f1", 200), cps=[9], free_knots=True, seed=9, iterations=200)
         ],
         "search_every_tol": lambda: [
             fit(
@@ -78,13 +80,14 @@ def calls():
                 **SHORT,
             )
         ],
+        # the shapes of tests/test_batch.py's batches (buckets of 64 and 80, its options)
         "fit_many": lambda: fit_many(
-            [analytic_points("f2", 80), closed_pts, analytic_points("f5", 110)],
-            cps=[5, 6],
-            degrees=[2, 3],
+            [analytic_points("f2", 64), closed_80, analytic_points("f5", 60)],
+            cps=[4, 6],
             closed=[False, True, False],
             seed=[1, 2, 3],
-            **SHORT,
+            iterations=60,
+            particles=16,
         ),
     }
 
