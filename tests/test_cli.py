@@ -300,7 +300,7 @@ def test_batch_from_one_npz_and_from_an_outline_pattern(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "left" in printed and "right" in printed and "2 of 2 curves" in printed
     (tmp_path / "outlines").mkdir()
-    ring = np.c_[np.cos(np.linspace(0, 6, 40)), np.sin(np.linspace(0, 6, 40))]
+    ring = np.c_[np.cos(np.linspace(0, 6, 60)), np.sin(np.linspace(0, 6, 60))]
     np.savez(
         tmp_path / "outlines" / "outlines.npz",
         ring_points=ring,
