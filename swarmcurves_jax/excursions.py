@@ -90,9 +90,9 @@ def _inside_the_ends(points, nxt, unit, length, allowance, idx, last, closed: bo
     """Each segment's ends; an open polyline's first segment starts, and its last ends,
     its allowance inside the data's end point (at most its length), so that the allowance
     stops at the end point.  The curve is pinned there and has no sagitta to make beyond
-    it: with the allowance reaching past the end, an over-fitted curve hooked back at an
-    end unpenalised (a random cubic of 7 control points fitted with 8: 0.047 past the end
-    at a data error of 3.9e-4)."""
+    it: an allowance reaching past the end lets an over-fitted curve hook back at an end
+    unpenalised (a random cubic of 7 control points fitted with 8: 0.047 past the end at
+    a data error of 3.9e-4)."""
     if closed:
         return points, nxt
     cut_start = jnp.where(idx == 0, jnp.minimum(allowance, length), 0.0)

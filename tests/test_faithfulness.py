@@ -76,10 +76,10 @@ def _past_the_ends(curve, points) -> float:
 @pytest.mark.parametrize("seed", [2547, 2542, 2550])
 def test_an_over_fitted_open_curve_does_not_hook_back_past_an_end(seed):
     """Random cubics of 7 control points fitted with 7 to 9: the curve is pinned at the
-    data's end points and reaches past them by less than its largest data error.  When
-    the excursion's allowance reached past the ends, the fit with one or two control
-    points to spare hooked back there unpenalised: 0.047, 0.072 and 0.065 past an end at
-    largest data errors of 1.8e-3, 4.5e-3 and 5.3e-3 (now at most 2.3e-3)."""
+    data's end points and reaches past them by less than its largest data error (at most
+    2.3e-3 here).  An allowance reaching past the ends would let the fit with one or two
+    control points to spare hook back there unpenalised: 0.047, 0.072 and 0.065 past an
+    end at largest data errors of 1.8e-3, 4.5e-3 and 5.3e-3."""
     pts, _ = random_bspline_points(7, 3, False, num_points=120, dim=2, seed=seed)
     norm, _, _ = normalise(pts)
     result = fit(norm, cps=range(4, 10), iterations=300, seed=seed)

@@ -104,9 +104,8 @@ def test_run_case_measures_the_conic_and_a_known_curve():
     assert row["middle_weight"] == pytest.approx(math.cos(math.pi / 3), abs=1e-4)
     assert row["symmetric_distance"] < 1e-5 and row["error"] < 1e-5
     # 20 exact points of a 6-cp cubic pin it down where the fit finds it: recovered,
-    # against the dense clean data too.  It is found from 2 of the seeds 0-3 (seed 1 both
-    # before and since the excursion allowance stopped at the ends; the others fall into
-    # a basin 4-8e-3 away).
+    # against the dense clean data too.  It is found from 2 of the seeds 0-3, seed 1 among
+    # them; the others fall into a basin 4-8e-3 away.
     sparse = run_case(
         by_name["fig7 sparse, 90 % removed (Fig. 2's cubic)"], iterations=2000, seed=1
     )
