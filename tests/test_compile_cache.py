@@ -54,25 +54,35 @@ def entries(folder):
     return sorted(p.name.split("-")[0] for p in folder.glob("*-cache"))
 
 
-def test_a_second_process_reads_the_programs_back_and_survives_damaged_entries(tmp_path):
-    folder = tmp_path / "programs"
-    first, _ = run_fresh({compile_cache.ENV: str(folder)}, tmp_path)
+def test_programs_are_kept_in_the_users_cache_read_back_and_survive_damage(tmp_path):
+    """A fresh process keeps its programs in the per-user cache folder; a second one
+    (here through JAX's own setting, which is kept) reads them back and computes the same
+    curves; damaged entries (e.g. a process killed while writing) are made again."""
+    first, _ = run_fresh({}, tmp_path)
+    folder = tmp_path / "home-cache" / "swarmcurves_jax" / "xla"
     assert first["hits"] == 0 and first["folder"] == str(folder)
-    kept = entries(folder)
-    assert {"jit_swarm_program", "jit_polish_program", "jit_initial_draws"} <= set(kept)
-    second, _ = run_fresh({compile_cache.ENV: str(folder)}, tmp_path)
+    assert {"jit_swarm_program", "jit_polish_program", "jit_initial_draws"} <= set(
+        entries(folder)
+    )
+    other = tmp_path / "other"
+    second, _ = run_fresh({"JAX_COMPILATION_CACHE_DIR": str(folder)}, other)
+    assert second["folder"] == str(folder) and not (other / "home-cache").exists()
     assert second["hits"] >= 3  # the draws, the swarm and the polish
     assert second["curves"] == first["curves"]  # the same executables: the same curves
     exported = sorted((folder / "exported").glob("*.jaxexport"))
     assert {p.name.split("-")[0] for p in exported} == {"swarm_program", "polish_program"}
-    damaged = [*folder.glob("*-cache"), *exported]
-    for entry in damaged:  # e.g. a process killed while writing
+    for entry in [*folder.glob("*-cache"), *exported]:
         entry.write_bytes(entry.read_bytes()[:100])
-    third, stderr = run_fresh({compile_cache.ENV: str(folder)}, tmp_path)
+    third, stderr = run_fresh({}, tmp_path)
     assert "Error reading persistent compilation cache entry" in stderr
     assert "unreadable exported program" in stderr
     assert third["curves"] == first["curves"]
     assert all(len(p.read_bytes()) > 100 for p in exported)  # made again, whole
+
+
+def test_off_keeps_nothing(tmp_path):
+    off, _ = run_fresh({compile_cache.ENV: "off"}, tmp_path)
+    assert off["folder"] == "None" and not (tmp_path / "home-cache").exists()
 
 
 def test_an_exported_program_computes_the_traced_programs_curves(monkeypatch):
@@ -89,20 +99,6 @@ def test_an_exported_program_computes_the_traced_programs_curves(monkeypatch):
     for a, b in zip(exported.solutions, traced.solutions, strict=True):
         np.testing.assert_array_equal(a.control_points, b.control_points)
         assert a.error == b.error
-
-
-def test_the_default_folder_is_the_users_cache_and_off_keeps_nothing(tmp_path):
-    used, _ = run_fresh({}, tmp_path)
-    default = tmp_path / "home-cache" / "swarmcurves_jax" / "xla"
-    assert used["folder"] == str(default) and entries(default)
-    other = tmp_path / "other"
-    off, _ = run_fresh({compile_cache.ENV: "off"}, other)
-    assert off["folder"] == "None" and not (other / "home-cache").exists()
-    # JAX's own setting is kept: here the first run's folder, whose programs it reads back
-    theirs, _ = run_fresh({"JAX_COMPILATION_CACHE_DIR": str(default)}, other)
-    assert theirs["folder"] == str(default) and theirs["hits"] >= 1
-    assert theirs["curves"] == used["curves"]
-    assert not (other / "home-cache").exists()
 
 
 def test_use_cache_names_the_folder_and_off_turns_it_off(tmp_path, monkeypatch):
