@@ -19,7 +19,7 @@ from .curves import Curve
 from .devices import host_map
 from .launch import Launched
 from .layout import Layout, knot_vector
-from .measures import Deviations, deviations
+from .measures import Deviations, deviations, turning
 from .projection import project_points
 from .results import FitResult
 
@@ -71,7 +71,8 @@ def collect(run: Launched) -> list[FitResult]:
                 else Candidate(polished[0][b, i], float(polished[1][b, i]), True)
             )
             k, n = pairs[i]
-            chosen = select(best, other, lambda c: measure(c, k, n, prep.space, prep.norm_pts))
+            on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
+            chosen = select(best, other, on_data, turning(prep.norm_pts, prep.space.closed))
             return make_curve(chosen, k, n, int(swarm[2][b, i]), prep)
 
         solutions = host_map(solution, range(len(pairs)))
@@ -97,19 +98,35 @@ def collect(run: Launched) -> list[FitResult]:
     return results
 
 
-def select(best: Candidate, polished: Candidate | None, measure) -> Measured:
+#: How much more than the swarm's curve (or the data polyline, if that turns more) a
+#: polished curve may turn: a quarter turn.  A fold, a loop or a horn at a corner adds
+#: about half a turn or more, whatever its size; a curve that follows the data turns
+#: about as they do (the polish's own fold term, :func:`~.excursions.sample_folds`, sees
+#: a fold only where its samples fall, and can miss one between them).
+EXTRA_TURNING = 0.5 * math.pi
+
+
+def select(best: Candidate, polished: Candidate | None, measure, data_turning: float) -> Measured:
     """The solution a swarm reports: its best, or its polished one if that one's fitness
-    is lower and then also its two-sided ``mean_deviation``.  The fitness is the device's
-    estimate, and the one-sided error cannot see a polish that lowers it by sending a
-    stretch of curve away from the data; ``measure(candidate)`` measures on the host."""
-    options = [best]
-    if polished is not None and polished.fitness < best.fitness:
-        options.append(polished)
-    measured = [measure(c) for c in options]
-    nan_last = lambda m: (
-        math.inf if math.isnan(m.deviation.mean_deviation) else m.deviation.mean_deviation
-    )  # noqa: E731
-    return min(measured, key=nan_last)
+    is lower, then also its two-sided ``mean_deviation``, and it turns at most
+    :data:`EXTRA_TURNING` more than the best or the data (``data_turning``) do.  The
+    fitness is the device's estimate, and neither it nor the one-sided error sees a
+    polish that lowers it by sending a stretch of curve away from the data or folding
+    it back on itself; ``measure(candidate)`` measures on the host."""
+    chosen = measure(best)
+    if polished is None or not polished.fitness < best.fitness:
+        return chosen
+    other = measure(polished)
+    room = max(chosen.deviation.turning, data_turning) + EXTRA_TURNING
+    if other.deviation.mean_deviation < _or_inf(chosen.deviation.mean_deviation) and (
+        other.deviation.turning <= room
+    ):
+        return other
+    return chosen
+
+
+def _or_inf(x: float) -> float:
+    return math.inf if math.isnan(x) else x
 
 
 def measure(candidate: Candidate, k: int, n: int, space: Layout, norm_pts) -> Measured:

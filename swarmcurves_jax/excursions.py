@@ -3,7 +3,10 @@
 The mean point-to-curve distance cannot see a stretch of curve that no point projects
 onto; a loop or a spike between two points costs it nothing.  The swarm and the polish
 add the arc-length mean of how far each curve sample lies beyond an allowance around the
-data polyline (:func:`excursion`), so a curve that leaves the data is worse.
+data polyline (:func:`excursion`), so a curve that leaves the data is worse.  The polish
+also pays for a fold, the curve doubling back on itself inside the allowance
+(:func:`sample_folds`): lowering the data error that way is its local moves' shortcut, not
+the swarm's.
 """
 
 from __future__ import annotations
@@ -16,21 +19,38 @@ import jax.numpy as jnp
 from .fitness import excess2_at, min_excess2
 from .span_basis import SpanBasis
 
-__all__ = ["ALLOWANCE_BASE", "Polyline", "data_segments", "sample_excursions", "excursion"]
+__all__ = [
+    "ALLOWANCE_BASE",
+    "Polyline",
+    "data_segments",
+    "sample_excursions",
+    "sample_folds",
+    "own_segments",
+    "excursion",
+]
 
 
 class Polyline(NamedTuple):
     """The polyline through the ordered data as the fitness sees it, one row per segment
     (``B``: the padded point count): ``centre`` (B, D), ``half`` (B, D) from the centre to
     its end (the segment is ``centre + s * half``, ``|s| <= 1``, as the fitness's tangent
-    segments are) and ``allowance2`` (B,), the square of how far a curve may stray from it
+    segments are), ``allowance2`` (B,), the square of how far a curve may stray from it
     unpenalised (``-inf`` on rows that are no segment, so that none of them is ever the
-    nearest).  An open polyline's first and last rows stop short of its end points by
-    their allowance, so that the allowance ends there (:func:`data_segments`)."""
+    nearest), and ``ahead`` (B, 5, D), the unit directions the data run in along it and
+    the two segments either side (its own past an open polyline's ends).
+    An open polyline's first and last rows stop short of its end points by their
+    allowance, so that the allowance ends there (:func:`data_segments`)."""
 
     centre: jax.Array
     half: jax.Array
     allowance2: jax.Array
+    ahead: jax.Array
+
+    @property
+    def segments(self) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """``(centre, half, allowance2)``: what the distance kernels of
+        :mod:`swarmcurves_jax.fitness` take."""
+        return self.centre, self.half, self.allowance2
 
 
 #: A segment's allowance is ``h * (ALLOWANCE_BASE + tan(turn / 4) / 2) + rough``, ``h``
@@ -83,7 +103,10 @@ def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
     allowance2 = jnp.where(idx < segments, allowance * allowance, -jnp.inf)
     start, end = _inside_the_ends(points, nxt, unit, length, allowance, idx, last, closed)
     half = 0.5 * (end - start)
-    return Polyline(start + half, half, allowance2)
+    # the data's directions at each segment: its own and its two neighbours' either side
+    ahead = [unit[before[before]], unit[before], unit, unit[after], unit[after[after]]]
+    ahead = jnp.stack(ahead, axis=1)
+    return Polyline(start + half, half, allowance2, ahead)
 
 
 def _inside_the_ends(points, nxt, unit, length, allowance, idx, last, closed: bool):
@@ -118,12 +141,44 @@ def sample_excursions(
     that one is measured.
     """
     if segment is None:
-        over = min_excess2(samples, *polyline)
+        over = min_excess2(samples, *polyline.segments)
     else:
-        over = excess2_at(samples, *polyline, segment)
+        over = excess2_at(samples, *polyline.segments, segment)
     excess = jnp.sqrt(jnp.maximum(over, 0.0) + 1e-30)
     real = jnp.arange(samples.shape[0]) < basis.per_span * basis.num_spans
     return excess, jnp.sqrt(jnp.sum(tangents * tangents, axis=1)) * real
+
+
+def sample_folds(samples, tangents, polyline: Polyline, segment) -> jax.Array:
+    """How far each curve sample inside the allowance runs back against the data (M,).
+
+    A fold, the curve doubling back on itself inside the allowance, costs no distance:
+    the excess sees only what leaves it.  A sample that runs against its segment and the
+    two either side (so not one turning a corner with the data, nor a curve that turns
+    more than a sparse polyline between its points) costs the room the allowance leaves
+    it, ``a - d``, in proportion to how far it turns back: nothing running with the data,
+    ``a`` running straight back along the polyline."""
+    speed = jnp.sqrt(jnp.sum(tangents * tangents, axis=1))
+    along = jnp.max(jnp.sum(tangents[:, None, :] * polyline.ahead[segment], axis=2), axis=1)
+    back = jnp.maximum(-along, 0.0) / jnp.maximum(speed, 1e-30)
+    a2 = jnp.maximum(polyline.allowance2[segment], 0.0)
+    d2 = excess2_at(samples, *polyline.segments, segment) + a2
+    room = jnp.sqrt(a2) - jnp.sqrt(jnp.maximum(d2, 0.0) + 1e-30)
+    return back * jnp.maximum(room, 0.0)
+
+
+def own_segments(segment, foot, mask, closed: bool) -> jax.Array:
+    """Whether each curve sample's nearest ``segment`` (M,) is its own part of the data
+    (M,) bool: within two segments of where the points' feet (``foot`` (N,), in samples,
+    ``mask`` 1 on the real points) place it.  A curve that passes near another part of
+    the data (sparse data whose curve runs back beside itself) runs against that part's
+    segments without folding."""
+    at = jnp.arange(segment.shape[0], dtype=foot.dtype)
+    expected = jnp.sum((foot[None, :] <= at[:, None] + 0.5) * mask[None, :], axis=1) - 1
+    gap = jnp.abs(segment - expected.astype(segment.dtype))
+    if closed:
+        gap = jnp.minimum(gap, jnp.sum(mask).astype(segment.dtype) - gap)
+    return gap <= 2
 
 
 def excursion(samples, tangents, basis: SpanBasis, polyline: Polyline) -> jax.Array:

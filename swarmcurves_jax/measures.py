@@ -30,6 +30,7 @@ __all__ = [
     "excursions",
     "median_spacing",
     "sample_excursions",
+    "turning",
 ]
 
 #: Initial samples per knot span of the curve; then refined where the curve bends or
@@ -51,6 +52,7 @@ class Deviations(NamedTuple):
     max_excursion: float  # max over the curve of its distance to the data polyline
     mean_excursion: float  # arc-length mean of the same
     rms_excursion: float  # arc-length root mean square of the same
+    turning: float  # the curve's total turning, radians (a fold or a loop adds about pi)
 
 
 def data_polyline(points: np.ndarray, closed: bool) -> np.ndarray:
@@ -95,9 +97,28 @@ def curve_polyline(ctrl, weights, t, k, closed, spacing: float) -> np.ndarray:
 def excursions(points, ctrl, weights, t, k, closed) -> tuple[float, float, float]:
     """``(max, arc-length mean, arc-length RMS)`` over the curve of its distance to the
     data polyline."""
-    points = np.asarray(points, dtype=np.float64)
-    samples = curve_polyline(ctrl, weights, t, k, closed, median_spacing(points, closed))
+    samples = _dense(points, ctrl, weights, t, k, closed)
     return sample_excursions(samples, data_polyline(points, closed))
+
+
+def _dense(points, ctrl, weights, t, k, closed) -> np.ndarray:
+    """The curve sampled densely at the data's scale (:func:`curve_polyline`)."""
+    points = np.asarray(points, dtype=np.float64)
+    return curve_polyline(ctrl, weights, t, k, closed, median_spacing(points, closed))
+
+
+def turning(vertices: np.ndarray, closed: bool) -> float:
+    """The total turning of the polyline through ``vertices`` in order (closed: also at
+    its first vertex), radians: the sum of the angles between consecutive chords,
+    zero-length chords skipped.  A closed convex curve turns ``2 pi``; a loop, a fold
+    or a cusp-like horn adds about ``pi`` or more, whatever its size."""
+    chords = np.diff(data_polyline(vertices, closed), axis=0)
+    length = np.linalg.norm(chords, axis=1)
+    unit = chords[length > 0] / length[length > 0, None]
+    if closed and len(unit):
+        unit = np.vstack([unit, unit[:1]])
+    cosines = np.clip(np.sum(unit[1:] * unit[:-1], axis=1), -1.0, 1.0)
+    return float(np.sum(np.arccos(cosines)))
 
 
 def sample_excursions(samples, polyline) -> tuple[float, float, float]:
@@ -119,7 +140,8 @@ def sample_excursions(samples, polyline) -> tuple[float, float, float]:
 def deviations(points, ctrl, weights, t, k, closed, data_distances) -> Deviations:
     """The two-sided measures of a curve (``ctrl`` in the frame of ``points``), given its
     data -> curve distances ``data_distances`` (N,) (:func:`~.projection.project_points`)."""
-    far, mean, rms = excursions(points, ctrl, weights, t, k, closed)
+    samples = _dense(points, ctrl, weights, t, k, closed)
+    far, mean, rms = sample_excursions(samples, data_polyline(points, closed))
     dist = np.asarray(data_distances, dtype=np.float64)
     return Deviations(
         max_deviation=max(float(np.max(dist)), far),
@@ -127,4 +149,5 @@ def deviations(points, ctrl, weights, t, k, closed, data_distances) -> Deviation
         max_excursion=far,
         mean_excursion=mean,
         rms_excursion=rms,
+        turning=turning(samples[:-1] if closed else samples, closed),
     )

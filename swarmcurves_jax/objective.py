@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
-from .excursions import Polyline, excursion, sample_excursions
+from .excursions import Polyline, excursion, sample_excursions, sample_folds
 from .fitness import dense_starts, foot_samples, nearest_segments, point_distances
 from .layout import Layout, geometry
 from .span_basis import PRECISION, SpanBasis, curve_samples, make_span_basis
@@ -77,12 +77,14 @@ def foot_starts(q, basis, points, space, pair, k):
 def excursion_term(q, basis, polyline: Polyline, space, pair, k, segment=None):
     """How far the curve of position ``q`` strays from the data polyline: the arc-length
     mean excess (:func:`~swarmcurves_jax.excursions.excursion`), the swarm's; or, given
-    each sample's nearest ``segment`` (:func:`polish_search`), each sample's excess
-    and arc length, the polish's residuals."""
+    each sample's nearest ``segment`` (:func:`polish_search`), each sample's excess, arc
+    length and fold (:func:`~swarmcurves_jax.excursions.sample_folds`), the polish's
+    residuals."""
     basis = space.basis(q, pair, k, basis)
     samples, tangents = curve_samples(*geometry(q, space), basis)
     if segment is not None:
-        return sample_excursions(samples, tangents, basis, polyline, segment)
+        excess, arc = sample_excursions(samples, tangents, basis, polyline, segment)
+        return excess, arc, sample_folds(samples, tangents, polyline, segment)
     return excursion(samples, tangents, basis, polyline)
 
 
@@ -93,7 +95,7 @@ def polish_search(q, basis, points, polyline: Polyline, space, pair, k):
     piecewise constant in ``q``, so kept out of every differentiation."""
     basis = space.basis(q, pair, k, basis)
     samples, tangents = curve_samples(*geometry(q, space), basis)
-    return dense_starts(points, samples, tangents), nearest_segments(samples, *polyline)
+    return dense_starts(points, samples, tangents), nearest_segments(samples, *polyline.segments)
 
 
 def search_apart(space: Layout) -> bool:

@@ -2,7 +2,8 @@
 
 After the search, :func:`polish_program` runs Levenberg–Marquardt (or L-BFGS,
 :mod:`swarmcurves_jax.refine`) from a few starts per swarm on the same objective as the
-swarm's: the data's distances and the curve's excursions from the data polyline.
+swarm's, the data's distances and the curve's excursions from the data polyline, and a
+fold term (a fold inside the allowance is a local method's shortcut to a lower data error).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from . import refine as local
-from .excursions import data_segments
+from .excursions import data_segments, own_segments
 from .layout import Layout
 from .objective import (
     CPU_COMPILER_OPTIONS,
@@ -60,12 +61,16 @@ def polish_program(
             def residuals(q, found):
                 """The points' distances, then each curve sample's excursion weighted by
                 its share of the arc (times the point count: their sum per point is the
-                swarm's excursion term)."""
+                swarm's excursion term), then each sample's fold weighted evenly (a fold
+                is slow curve, and its share of the arc would hide it)."""
                 foot, segment = found
                 near = distances(q, basis, points, space, pair, k, foot, gather=True) * mask
-                excess, arc = excursion_term(q, basis, polyline, space, pair, k, segment)
+                excess, arc, fold = excursion_term(q, basis, polyline, space, pair, k, segment)
                 share = jax.lax.stop_gradient(arc * (count / jnp.maximum(jnp.sum(arc), 1e-30)))
-                return jnp.concatenate([near, excess * share])
+                real = arc > 0
+                even = count / jnp.maximum(jnp.sum(real), 1)
+                own = own_segments(segment, foot, mask, space.closed) * real
+                return jnp.concatenate([near, excess * share, fold * even * own])
 
             def search(q):
                 return polish_search(q, basis, points, polyline, space, pair, k)
@@ -76,7 +81,7 @@ def polish_program(
             starts = [state.best_position[None], state.pbest_position[top]]
             starts = jnp.concatenate(starts + ([seed[None]] if seeded else []))
             polish = local.levenberg_marquardt if method == "lm" else local.lbfgs
-            extra = jnp.zeros(basis.sample_value.shape[-2], mask.dtype)
+            extra = jnp.zeros(2 * basis.sample_value.shape[-2], mask.dtype)
             problem = local.Problem(
                 residuals,
                 search,

@@ -1,5 +1,7 @@
 """Fits stay with the data both ways: no loops, spikes or excursions between the points."""
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -8,8 +10,10 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from swarmcurves_jax import fit, normalise
+from swarmcurves_jax.assemble import Candidate, select
 from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
-from swarmcurves_jax.excursions import data_segments
+from swarmcurves_jax.excursions import data_segments, own_segments, sample_folds
+from swarmcurves_jax.measures import Deviations, curve_polyline, median_spacing, turning
 
 _segments = jax.jit(data_segments, static_argnums=2)  # one compilation per shape
 
@@ -87,13 +91,89 @@ def test_an_over_fitted_open_curve_does_not_hook_back_past_an_end(seed):
         assert _past_the_ends(c, norm) <= c.max_error, c
 
 
+def _turning(curve, points) -> float:
+    """The curve's total turning, sampled as the two-sided measures sample it."""
+    spacing = median_spacing(points, curve.closed)
+    args = (curve.control_points, curve.weights, curve.knots, curve.degree, curve.closed)
+    samples = curve_polyline(*args, spacing)
+    return turning(samples[:-1] if curve.closed else samples, curve.closed)
+
+
 @pytest.mark.parametrize("name,n", [("f1", 11), ("f2", 19)])
-def test_the_polish_leaves_no_spike_on_table_1(name, n):
+def test_the_polish_leaves_no_spike_or_fold_on_table_1(name, n):
     """The paper's f1 at 11 and f2 at 19 control points, defaults: the polish used to send
     a stretch of curve out of the frame between two samples (largest deviation 0.28 and
     6.8 half-extents) because the data error fell.  Now every point of the curve stays
-    within a few hundredths of the data."""
-    result = fit(analytic_points(name), cps=[n], seed=0)
-    c = result.solutions[0]
+    within a few hundredths of the data; and the polished curve is kept, and turns about
+    as the data do: f2's used to fold back on itself inside the allowance, turning 5.7
+    radians more than the data polyline (now less than the data polyline)."""
+    points = analytic_points(name)
+    c = fit(points, cps=[n], seed=0).solutions[0]
     assert c.max_deviation < 0.03, c
     assert c.mean_deviation < 3 * c.error + 1e-3, c
+    assert c.info["refined"], c
+    assert _turning(c, points) < turning(points, False) + 0.5 * np.pi, c
+
+
+def test_a_sample_running_back_inside_the_allowance_costs_the_room_left():
+    """Along a straight polyline (allowance 0.03 = three tenths of a segment), a sample
+    running back costs the allowance less its distance, nothing outside the allowance or
+    running forward; at a right-angle corner, running along either leg costs nothing."""
+    x = np.linspace(0.0, 1.0, 11)
+    line = data_segments(jnp.asarray(np.c_[x, 0 * x]), jnp.ones(11), False)
+    samples = jnp.asarray([[0.45, 0.0], [0.45, 0.0], [0.55, 0.01], [0.55, 0.05]])
+    tangents = jnp.asarray([[1.0, 0.0], [-1.0, 0.0], [-1.0, 0.0], [-1.0, 0.0]])
+    segment = jnp.asarray([4, 4, 5, 5])
+    folds = np.asarray(sample_folds(samples, tangents, line, segment))
+    np.testing.assert_allclose(folds, [0.0, 0.03, 0.02, 0.0], atol=1e-6)
+    corner = jnp.asarray([[0.0, 0.0], [0.1, 0.0], [0.2, 0.0], [0.2, 0.1], [0.2, 0.2]])
+    line = data_segments(corner, jnp.ones(5), False)
+    turned = sample_folds(jnp.asarray([[0.2, 0.0]] * 2), jnp.asarray([[0.0, 1.0], [1.0, 0.0]]),
+                          line, jnp.asarray([1, 2]))
+    np.testing.assert_array_equal(np.asarray(turned), [0.0, 0.0])
+
+
+def test_a_sample_near_another_part_of_the_data_is_not_its_own():
+    """Ten points whose feet lie at samples 0, 4, ..., 36: a sample's own segment is the
+    one between the feet around it, give or take two; a closed curve's wraps around."""
+    foot, mask = jnp.arange(0.0, 40.0, 4.0), jnp.ones(10)
+    at = jnp.arange(40)
+    near = (at // 4).astype(jnp.int32)  # the segment each sample lies along
+    assert bool(jnp.all(own_segments(near, foot, mask, False)))
+    far = (near + 5) % 9
+    assert not bool(jnp.any(own_segments(far, foot, mask, False)))
+    wrapped = jnp.where(at < 4, 9, near).astype(jnp.int32)  # the closing segment 9 -> 0
+    assert bool(jnp.all(own_segments(wrapped, foot, mask, True)))
+    assert not bool(jnp.all(own_segments(wrapped, foot, mask, False)))
+
+
+class _Measured(NamedTuple):
+    deviation: Deviations
+    name: str
+
+
+def _deviations(mean, turns):
+    return Deviations(0.0, mean, 0.0, 0.0, 0.0, turns)
+
+
+@pytest.mark.parametrize(
+    "polished, kept",
+    [
+        ((1e-3, 1e-4, 7.0), "polished"),  # lower fitness and mean, turns as the data
+        ((1e-3, 1e-4, 6.0 + 0.5 * np.pi + 0.1), "best"),  # folds: a quarter turn more
+        ((1e-3, 3e-4, 7.0), "best"),  # its mean deviation is higher
+        ((3e-3, 1e-4, 7.0), "best"),  # its fitness is higher
+    ],
+)
+def test_a_polished_curve_that_folds_is_not_kept(polished, kept):
+    """The swarm's best (fitness 2e-3, mean deviation 2e-4, turning 5.5 rad) against its
+    polished curve, for data whose polyline turns 6 rad."""
+    fitness, mean, turns = polished
+    candidates = {
+        "best": (Candidate(np.zeros(3), 2e-3, False), _deviations(2e-4, 5.5)),
+        "polished": (Candidate(np.zeros(3), fitness, True), _deviations(mean, turns)),
+    }
+    by_candidate = {id(c): _Measured(d, name) for name, (c, d) in candidates.items()}
+    best, other = (candidates[name][0] for name in ("best", "polished"))
+    chosen = select(best, other, lambda c: by_candidate[id(c)], data_turning=6.0)
+    assert chosen.name == kept
