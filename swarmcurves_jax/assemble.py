@@ -62,8 +62,9 @@ def collect(run: Launched) -> list[FitResult]:
     history = np.concatenate(place.get(progress.history), axis=2)
     results = []
     for b, prep in enumerate(preps):
+        data_turning = turning(prep.norm_pts, prep.space.closed)
 
-        def solution(i, b=b, prep=prep):
+        def solution(i, b=b, prep=prep, data_turning=data_turning):
             best = Candidate(swarm[0][b, i], float(swarm[1][b, i]), False)
             other = (
                 None
@@ -72,7 +73,7 @@ def collect(run: Launched) -> list[FitResult]:
             )
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
-            chosen = select(best, other, on_data, turning(prep.norm_pts, prep.space.closed))
+            chosen = select(best, other, on_data, data_turning)
             return make_curve(chosen, k, n, int(swarm[2][b, i]), prep)
 
         solutions = host_map(solution, range(len(pairs)))
