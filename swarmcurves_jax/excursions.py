@@ -131,7 +131,8 @@ def sample_excursions(
     segment: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """How far each curve sample strays beyond the data polyline's allowance, (M,), and
-    the arc length it stands for, (M,) (0 on samples that repeat the last).
+    the arc length it stands for, (M,) (0 on samples that repeat the last); given each
+    sample's ``segment``, also its fold (:func:`sample_folds`), (M,).
 
     The excess is ``sqrt(min over segments of max(0, d**2 - a**2))`` (``d``: the
     distance to a segment, ``a``: its allowance): zero inside the allowance, about ``d``
@@ -146,11 +147,15 @@ def sample_excursions(
         over = excess2_at(samples, *polyline.segments, segment)
     excess = jnp.sqrt(jnp.maximum(over, 0.0) + 1e-30)
     real = jnp.arange(samples.shape[0]) < basis.per_span * basis.num_spans
-    return excess, jnp.sqrt(jnp.sum(tangents * tangents, axis=1)) * real
+    arc = jnp.sqrt(jnp.sum(tangents * tangents, axis=1)) * real
+    if segment is None:
+        return excess, arc
+    return excess, arc, sample_folds(tangents, over, polyline, segment)
 
 
-def sample_folds(samples, tangents, polyline: Polyline, segment) -> jax.Array:
-    """How far each curve sample inside the allowance runs back against the data (M,).
+def sample_folds(tangents, over, polyline: Polyline, segment) -> jax.Array:
+    """How far each curve sample inside the allowance runs back against the data (M,),
+    given its ``over = d**2 - a**2`` at its ``segment`` (:func:`sample_excursions`).
 
     A fold, the curve doubling back on itself inside the allowance, costs no distance:
     the excess sees only what leaves it.  A sample that runs against its segment and the
@@ -162,8 +167,7 @@ def sample_folds(samples, tangents, polyline: Polyline, segment) -> jax.Array:
     along = jnp.max(jnp.sum(tangents[:, None, :] * polyline.ahead[segment], axis=2), axis=1)
     back = jnp.maximum(-along, 0.0) / jnp.maximum(speed, 1e-30)
     a2 = jnp.maximum(polyline.allowance2[segment], 0.0)
-    d2 = excess2_at(samples, *polyline.segments, segment) + a2
-    room = jnp.sqrt(a2) - jnp.sqrt(jnp.maximum(d2, 0.0) + 1e-30)
+    room = jnp.sqrt(a2) - jnp.sqrt(jnp.maximum(over + a2, 0.0) + 1e-30)
     return back * jnp.maximum(room, 0.0)
 
 

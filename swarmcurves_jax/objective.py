@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
-from .excursions import Polyline, excursion, sample_excursions, sample_folds
+from .excursions import Polyline, excursion, sample_excursions
 from .fitness import dense_starts, foot_samples, nearest_segments, point_distances
 from .layout import Layout, geometry
 from .span_basis import PRECISION, SpanBasis, curve_samples, make_span_basis
@@ -83,8 +83,7 @@ def excursion_term(q, basis, polyline: Polyline, space, pair, k, segment=None):
     basis = space.basis(q, pair, k, basis)
     samples, tangents = curve_samples(*geometry(q, space), basis)
     if segment is not None:
-        excess, arc = sample_excursions(samples, tangents, basis, polyline, segment)
-        return excess, arc, sample_folds(samples, tangents, polyline, segment)
+        return sample_excursions(samples, tangents, basis, polyline, segment)
     return excursion(samples, tangents, basis, polyline)
 
 

@@ -63,17 +63,19 @@ def polish_program(
                 its share of the arc (times the point count: their sum per point is the
                 swarm's excursion term), then each sample's fold weighted evenly (a fold
                 is slow curve, and its share of the arc would hide it)."""
-                foot, segment = found
+                foot, segment, own = found
                 near = distances(q, basis, points, space, pair, k, foot, gather=True) * mask
                 excess, arc, fold = excursion_term(q, basis, polyline, space, pair, k, segment)
                 share = jax.lax.stop_gradient(arc * (count / jnp.maximum(jnp.sum(arc), 1e-30)))
                 real = arc > 0
                 even = count / jnp.maximum(jnp.sum(real), 1)
-                own = own_segments(segment, foot, mask, space.closed) * real
-                return jnp.concatenate([near, excess * share, fold * even * own])
+                return jnp.concatenate([near, excess * share, fold * even * (own * real)])
 
             def search(q):
-                return polish_search(q, basis, points, polyline, space, pair, k)
+                """Each point's foot, each sample's segment and whether it is its own:
+                found once per step, outside the residuals' traces."""
+                foot, segment = polish_search(q, basis, points, polyline, space, pair, k)
+                return foot, segment, own_segments(segment, foot, mask, space.closed)
 
             free = box.mask * (box.lower != box.upper)  # pinned ends and padding stay
             others = min(REFINE_STARTS - 1 - int(seeded), state.pbest_fitness.shape[0])

@@ -13,7 +13,8 @@ from swarmcurves_jax import fit, normalise
 from swarmcurves_jax.assemble import Candidate, select
 from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
 from swarmcurves_jax.excursions import data_segments, own_segments, sample_folds
-from swarmcurves_jax.measures import Deviations, curve_polyline, median_spacing, turning
+from swarmcurves_jax.fitness import excess2_at
+from swarmcurves_jax.measures import Deviations, deviations, turning
 
 _segments = jax.jit(data_segments, static_argnums=2)  # one compilation per shape
 
@@ -92,11 +93,9 @@ def test_an_over_fitted_open_curve_does_not_hook_back_past_an_end(seed):
 
 
 def _turning(curve, points) -> float:
-    """The curve's total turning, sampled as the two-sided measures sample it."""
-    spacing = median_spacing(points, curve.closed)
+    """The curve's total turning, as the two-sided measures sample it."""
     args = (curve.control_points, curve.weights, curve.knots, curve.degree, curve.closed)
-    samples = curve_polyline(*args, spacing)
-    return turning(samples[:-1] if curve.closed else samples, curve.closed)
+    return deviations(points, *args, curve.residuals).turning
 
 
 @pytest.mark.parametrize("name,n", [("f1", 11), ("f2", 19)])
@@ -124,12 +123,14 @@ def test_a_sample_running_back_inside_the_allowance_costs_the_room_left():
     samples = jnp.asarray([[0.45, 0.0], [0.45, 0.0], [0.55, 0.01], [0.55, 0.05]])
     tangents = jnp.asarray([[1.0, 0.0], [-1.0, 0.0], [-1.0, 0.0], [-1.0, 0.0]])
     segment = jnp.asarray([4, 4, 5, 5])
-    folds = np.asarray(sample_folds(samples, tangents, line, segment))
+    over = excess2_at(samples, *line.segments, segment)
+    folds = np.asarray(sample_folds(tangents, over, line, segment))
     np.testing.assert_allclose(folds, [0.0, 0.03, 0.02, 0.0], atol=1e-6)
     corner = jnp.asarray([[0.0, 0.0], [0.1, 0.0], [0.2, 0.0], [0.2, 0.1], [0.2, 0.2]])
     line = data_segments(corner, jnp.ones(5), False)
-    turned = sample_folds(jnp.asarray([[0.2, 0.0]] * 2), jnp.asarray([[0.0, 1.0], [1.0, 0.0]]),
-                          line, jnp.asarray([1, 2]))
+    at, segment = jnp.asarray([[0.2, 0.0]] * 2), jnp.asarray([1, 2])
+    over = excess2_at(at, *line.segments, segment)
+    turned = sample_folds(jnp.asarray([[0.0, 1.0], [1.0, 0.0]]), over, line, segment)
     np.testing.assert_array_equal(np.asarray(turned), [0.0, 0.0])
 
 
