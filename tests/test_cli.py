@@ -193,7 +193,7 @@ def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
     ring = np.c_[np.cos(np.linspace(0, 6, 40)), np.sin(np.linspace(0, 6, 40))]
     np.savez(tmp_path / "outlines" / "outlines.npz", ring_points=ring, ring_closed=np.array(True))
     (tmp_path / "job.yaml").write_text(
-        f"input: outline:ring\ndata_dir: {tmp_path}\ncps: 5\niterations: 20\n"
+        f"input: outline:ring\ndata_dir: {tmp_path}\ncps: 5\niterations: 20\nrefine: none\n"
     )
     assert main([str(tmp_path / "job.yaml"), "--quiet"]) == 0
     assert "40 points from outline:ring, closed" in capsys.readouterr().out

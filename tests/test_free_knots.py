@@ -103,13 +103,14 @@ def test_refinement_moves_knots_towards_the_true_ones():
 
 def test_free_knots_beat_uniform_knots_where_curvature_is_uneven():
     """f5's narrow bump: knots seeded where the data turn, then moved by swarm and
-    refinement, give a several-fold lower error than uniform knots at equal counts."""
+    refinement, give a several-fold lower error than uniform knots at equal counts (at 9
+    control points and 200 iterations: the free-knot program the open-curve tests below
+    share)."""
     pts = analytic_points("f5")
-    fixed = fit(pts, cps=[11, 15], iterations=1000)
-    free = fit(pts, cps=[11, 15], iterations=1000, free_knots=True)
-    for n in (11, 15):
-        assert free[3, n].error < fixed[3, n].error / 2  # measured: 4.0x and 3.2x
-    assert np.min(np.diff(free[3, 15].knots[4:-4])) < 0.5 / 12  # knots gathered
+    fixed = fit(pts, cps=[9], iterations=200)
+    free = fit(pts, cps=[9], iterations=200, free_knots=True)
+    assert free[3, 9].error < fixed[3, 9].error / 2  # measured: 11.6x
+    assert np.min(np.diff(free[3, 9].knots[4:-4])) < 0.5 / 6  # knots gathered: 0.048
 
 
 def test_free_knot_curves_round_trip_and_export(tmp_path):
