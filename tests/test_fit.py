@@ -266,7 +266,7 @@ def test_tol_stops_early_and_says_so():
 
 def test_result_objects_and_round_trip(tmp_path):
     """A closed rational 3D fit's result, table and JSON round trip; without the polish,
-    which none of it depends on (it compiles as long as the swarm)."""
+    which none of it depends on and whose program compiles for as long as the swarm's."""
     pts = spline_points(10, 5, True, dim=3)
     result = fit(
         pts, cps=[5, 6], degrees=[2, 3], closed=True, rational=True, iterations=100, refine=False
