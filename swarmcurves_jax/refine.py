@@ -137,27 +137,21 @@ def levenberg_marquardt(
     passes = jnp.arange(steps + 1)
     stages = (passes == 0, jnp.minimum(passes, steps - 1) >= l2_steps)
     # placeholders shaped like the search's and the residuals' results, never read
-    aux0 = jax.tree_util.tree_map(lambda a: _zeros_like(a, x0), jax.eval_shape(search, x0))
-    w0 = _zeros_like(jax.eval_shape(residuals, x0, aux0), x0)
-    inf = _scalar_like(jnp.inf, x0)
-    init = (x0, aux0, _scalar_like(1e-3, x0), (x0, inf, inf), x0, w0, inf)
+    zeros = lambda a: _batched_like(jnp.zeros(a.shape, a.dtype), x0)  # noqa: E731
+    aux0 = jax.tree_util.tree_map(zeros, jax.eval_shape(search, x0))
+    w0 = zeros(jax.eval_shape(residuals, x0, aux0))
+    inf, mu0 = (_batched_like(jnp.asarray(v, x0.dtype), x0) for v in (jnp.inf, 1e-3))
+    init = (x0, aux0, mu0, (x0, inf, inf), x0, w0, inf)
     (_, _, _, best, _, _, _), _ = jax.lax.scan(body, init, stages)
     return best
 
 
-def _scalar_like(value: float, x: jax.Array) -> jax.Array:
-    """``value`` as a scalar of ``x``'s type that depends on ``x``: under ``vmap`` it is
-    batched as ``x`` is.  A loop's carry that starts unbatched and becomes batched makes
-    the loop's batching rule trace its body twice per ``vmap`` level: the polish's
-    damping started as a constant, and ``fit(f4)``'s polish traced in 1.7-2.0 s instead
-    of 1.2-1.3 s (the same program)."""
-    return jnp.where(x[0] == x[0], value, value).astype(x.dtype)
-
-
-def _zeros_like(shape: jax.ShapeDtypeStruct, x: jax.Array) -> jax.Array:
-    """Zeros of ``shape``'s shape and type that depend on ``x`` (:func:`_scalar_like`)."""
-    zeros = jnp.zeros(shape.shape, shape.dtype)
-    return jnp.where(x[0] == x[0], zeros, zeros)
+def _batched_like(a: jax.Array, x: jax.Array) -> jax.Array:
+    """``a``, made to depend on ``x``: under ``vmap`` it is batched as ``x`` is.  A loop's
+    carry that starts unbatched and becomes batched makes the loop's batching rule trace
+    its body twice per ``vmap`` level: the polish's damping started as a constant, and
+    ``fit(f4)``'s polish traced in 1.7-2.0 s instead of 1.2-1.3 s (the same program)."""
+    return jnp.where(x[0] == x[0], a, a)
 
 
 def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
