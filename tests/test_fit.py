@@ -265,11 +265,12 @@ def test_tol_stops_early_and_says_so():
 
 
 def test_result_objects_and_round_trip(tmp_path):
-    """A closed rational 3D fit's result, table and JSON round trip; without the polish,
-    which none of it depends on and whose program compiles for as long as the swarm's."""
-    pts = spline_points(10, 5, True, dim=3)
+    """A closed rational fit's result, table and JSON round trip; at the swarm program of
+    the command line's closed rational output test (90 points, 60 iterations) and without
+    the polish, which none of it depends on."""
+    pts = random_bspline_points(6, 3, True, num_points=90, seed=4)[0]
     result = fit(
-        pts, cps=[5, 6], degrees=[2, 3], closed=True, rational=True, iterations=100, refine=False
+        pts, cps=[5, 6], degrees=[2, 3], closed=True, rational=True, iterations=60, refine=False
     )
     assert isinstance(result, FitResult)
     assert [(c.degree, c.n_ctrl) for c in result.solutions] == [(2, 5), (2, 6), (3, 5), (3, 6)]

@@ -41,7 +41,11 @@ def as_jax(basis):
 
 
 # Sample counts around the unrolled blocks (96 samples in 2D, 64 in 3D) and their scan,
-# whose equal blocks pad past a power of two at 511 (6 x 86); each count compiles once.
+# whose equal blocks pad past a power of two at 511 (6 x 86); each count compiles once,
+# both searches in one program.
+_nearest_and_start = jax.jit(lambda *a: (nearest_sample(*a), search_starts(*a)))
+
+
 @given(
     st.integers(0, 1000),
     st.sampled_from([1, 7, 64, 65, 96, 97, 511]),
@@ -55,7 +59,7 @@ def test_nearest_sample_is_argmin_of_segment_distance(seed, num, dim):
     s = rng.uniform(-1, 1, (num, dim)).astype(np.float32)
     tang = rng.uniform(-0.05, 0.05, (num, dim)).astype(np.float32)
     tang[rng.uniform(size=num) < 0.2] = 0.0  # a sample where the curve stands still
-    j = np.asarray(jax.jit(nearest_sample)(jnp.asarray(pts), jnp.asarray(s), jnp.asarray(tang)))
+    j, start = (np.asarray(x) for x in _nearest_and_start(*map(jnp.asarray, (pts, s, tang))))
     assert j.min() >= 0 and j.max() < num
     diff = pts[:, None] - s[None]
     along = np.sum(diff * tang[None], -1)
@@ -64,7 +68,6 @@ def test_nearest_sample_is_argmin_of_segment_distance(seed, num, dim):
     d2 = np.sum((diff - sc[..., None] * tang[None]) ** 2, -1)
     # the packed search may break near-ties differently: compare distances, not indices
     np.testing.assert_allclose(d2[np.arange(len(pts)), j], d2.min(axis=1), rtol=1e-4, atol=1e-12)
-    start = np.asarray(jax.jit(search_starts)(*(jnp.asarray(x) for x in (pts, s, tang))))
     if starts_on_segment(num, dim):
         np.testing.assert_allclose(start, j + 0.5 + 0.5 * sc[np.arange(len(pts)), j], atol=2e-5)
     else:
