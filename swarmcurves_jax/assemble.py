@@ -27,11 +27,12 @@ __all__ = ["Candidate", "Measured", "collect", "select", "measure", "make_curve"
 
 
 class Candidate(NamedTuple):
-    """A swarm's solution as the device left it: its flat position and its fitness."""
+    """A swarm's solution: its flat position, its fitness on the device (None for the
+    seed, which the host made) and where it comes from: "swarm", "polish" or "seed"."""
 
     position: np.ndarray
-    fitness: float
-    polished: bool
+    fitness: float | None
+    source: str
 
 
 class Measured(NamedTuple):
@@ -65,15 +66,16 @@ def collect(run: Launched) -> list[FitResult]:
         data_turning = turning(prep.norm_pts, prep.space.closed)
 
         def solution(i, b=b, prep=prep, data_turning=data_turning):
-            best = Candidate(swarm[0][b, i], float(swarm[1][b, i]), False)
+            best = Candidate(swarm[0][b, i], float(swarm[1][b, i]), "swarm")
             other = (
                 None
                 if polished is None
-                else Candidate(polished[0][b, i], float(polished[1][b, i]), True)
+                else Candidate(polished[0][b, i], float(polished[1][b, i]), "polish")
             )
+            seed = None if run.seeds is None else Candidate(run.seeds[b, i], None, "seed")
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
-            chosen = select(best, other, on_data, data_turning)
+            chosen = select(best, other, on_data, data_turning, seed)
             return make_curve(chosen, k, n, int(swarm[2][b, i]), prep)
 
         solutions = host_map(solution, range(len(pairs)))
@@ -107,23 +109,56 @@ def collect(run: Launched) -> list[FitResult]:
 EXTRA_TURNING = 0.5 * math.pi
 
 
-def select(best: Candidate, polished: Candidate | None, measure, data_turning: float) -> Measured:
-    """The solution a swarm reports: its best, or its polished one if that one's fitness
-    is lower, then also its two-sided ``mean_deviation``, and it turns at most
-    :data:`EXTRA_TURNING` more than the best or the data (``data_turning``) do.  The
-    fitness is the device's estimate, and neither it nor the one-sided error sees a
-    polish that lowers it by sending a stretch of curve away from the data or folding
-    it back on itself; ``measure(candidate)`` measures on the host."""
+def select(
+    best: Candidate,
+    polished: Candidate | None,
+    measure,
+    data_turning: float,
+    seed: Candidate | None = None,
+) -> Measured:
+    """The solution a swarm reports, judged on the host (``measure(candidate)``) by the
+    two-sided measures.
+
+    Its best, or its polished one if that one's fitness is lower, then also its two-sided
+    ``mean_deviation``, and it turns at most :data:`EXTRA_TURNING` more than the best or
+    the data (``data_turning``) do: the fitness is the device's estimate, and neither it
+    nor the one-sided error sees a polish that lowers it by sending a stretch of curve
+    away from the data or folding it back on itself.  Then the swarm's least-squares
+    ``seed``, where it is closer to the data (:func:`_closer`) and turns no more than
+    that: the swarm minimises a mean, and with too few control points for the shape its
+    curve can leave a larger gap than the seed it started from, or come to a cusp.
+    """
     chosen = measure(best)
-    if polished is None or not polished.fitness < best.fitness:
-        return chosen
-    other = measure(polished)
-    room = max(chosen.deviation.turning, data_turning) + EXTRA_TURNING
-    if other.deviation.mean_deviation < _or_inf(chosen.deviation.mean_deviation) and (
-        other.deviation.turning <= room
-    ):
-        return other
+    if polished is not None and polished.fitness < best.fitness:
+        other = measure(polished)
+        if _closer(other, chosen, mean_only=True) and _turns_as_data(other, chosen, data_turning):
+            chosen = other
+    if seed is not None:
+        other = measure(seed)
+        if _closer(other, chosen) and _turns_as_data(other, chosen, data_turning):
+            chosen = other
     return chosen
+
+
+def _closer(other: Measured, chosen: Measured, mean_only: bool = False) -> bool:
+    """Whether ``other`` is closer to the data than ``chosen``: a lower two-sided mean
+    deviation, or (unless ``mean_only``) a smaller largest data distance and no larger
+    largest deviation, the two ways a curve's worst gap is measured."""
+    a, b = other.deviation, chosen.deviation
+    if a.mean_deviation < _or_inf(b.mean_deviation):
+        return True
+    if mean_only:
+        return False
+    return bool(np.max(other.distances) < np.max(chosen.distances)) and (
+        a.max_deviation <= _or_inf(b.max_deviation)
+    )
+
+
+def _turns_as_data(other: Measured, chosen: Measured, data_turning: float) -> bool:
+    """Whether ``other`` turns at most :data:`EXTRA_TURNING` more than ``chosen`` or the
+    data polyline, whichever turns more."""
+    room = max(chosen.deviation.turning, data_turning) + EXTRA_TURNING
+    return other.deviation.turning <= room
 
 
 def _or_inf(x: float) -> float:
@@ -170,7 +205,8 @@ def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:
         info={
             "iterations": steps,
             "fitness": m.candidate.fitness,
-            "refined": m.candidate.polished,
+            "refined": m.candidate.source == "polish",
+            "source": m.candidate.source,
             "seed": prep.seed_value,
             "max_excursion": dev.max_excursion,
             "rms_excursion": dev.rms_excursion,

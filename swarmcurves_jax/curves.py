@@ -62,7 +62,9 @@ class Curve:
     residuals : ndarray, shape (N,) or None
         Per-point distances (normalised frame), in the order of the fitted points.
     info : dict
-        JSON-safe extras of the fit (iterations run, seed, swarm fitness, ...).
+        JSON-safe extras of the fit (iterations run, seed, swarm fitness, ``source``:
+        which candidate was kept, ``"swarm"``, ``"polish"`` or the least-squares
+        ``"seed"``, ...).
     """
 
     degree: int

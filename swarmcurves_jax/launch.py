@@ -55,6 +55,7 @@ class Batch(NamedTuple):
     state: pso.PSOState  # placeholder (step 0): the program initialises it
     inputs: Inputs
     bases: tuple  # the search's span bases, one per degree group
+    seeds: np.ndarray  # the least-squares seeds in float64, as the host measures them
 
 
 class Progress(NamedTuple):
@@ -76,6 +77,7 @@ class Launched(NamedTuple):
     place: Placement
     progress: Progress
     polished: tuple | None  # the polish's (positions, fitness), device arrays
+    seeds: np.ndarray | None  # the least-squares seeds, candidates beside the polish's
     stop_reason: str
     start: float
     timings: dict
@@ -151,7 +153,8 @@ def launch(
     polished = None
     if opts.method is not None and stop_reason != "interrupted":
         polished = _polish(batch, progress, opts, place, early)
-    return Launched(preps, opts, place, progress, polished, stop_reason, start, timings)
+    seeds = batch.seeds if opts.init == "lsq" and opts.method is not None else None
+    return Launched(preps, opts, place, progress, polished, seeds, stop_reason, start, timings)
 
 
 def _start_draws(keys, pair_ids, space: Layout, opts: FitOptions) -> Future:
@@ -186,10 +189,11 @@ def _host_batch(padded, num: int, keys, pair_ids, opts: FitOptions) -> Batch:
         if id(p) not in built:
             built[id(p)] = (
                 search_boxes(pairs, space, opts.weight_bounds, p.ends, opts.dtype),
-                seed_positions(pairs, space, p.fit_pts, p.closed, p.ends, opts.dtype),
+                seed_positions(pairs, space, p.fit_pts, p.closed, p.ends, np.float64),
             )
     boxes = pso.Box(*(np.stack(parts) for parts in zip(*(built[id(p)][0] for p in padded))))
     stack = lambda field: np.stack([getattr(p, field) for p in padded])  # noqa: E731
+    seeds = np.stack([built[id(p)][1] for p in padded])
     return Batch(
         num=num,
         space=space,
@@ -198,13 +202,12 @@ def _host_batch(padded, num: int, keys, pair_ids, opts: FitOptions) -> Batch:
         keys=keys,
         pair_ids=pair_ids,
         state=empty_state(len(padded), len(pairs), opts.particles, space.size, opts.dtype),
-        inputs=Inputs(
-            boxes, np.stack([built[id(p)][1] for p in padded]), stack("data"), stack("mask")
-        ),
+        inputs=Inputs(boxes, seeds.astype(opts.dtype), stack("data"), stack("mask")),
         bases=tuple(
             stack_bases(pairs[i:j], space.closed, samples, space.n_pad, opts.dtype)
             for _, i, j, samples in groups
         ),
+        seeds=seeds,
     )
 
 
@@ -328,6 +331,7 @@ def _part(batch: Batch, chosen: np.ndarray) -> Batch:
             boxes=pick(batch.inputs.boxes), seeds=batch.inputs.seeds[:, chosen]
         ),
         bases=tuple(jax.tree_util.tree_map(lambda a, w=w: a[w], batch.bases[g]) for g, w in taken),
+        seeds=batch.seeds[:, chosen],
     )
 
 
