@@ -126,7 +126,7 @@ def select(
     away from the data or folding it back on itself.  Then the swarm's least-squares
     ``seed``, where it is closer to the data (:func:`_closer`) and turns no more than
     that: the swarm minimises a mean, and with too few control points for the shape its
-    curve can leave a larger gap than the seed it started from, or come to a cusp.
+    curve can leave a larger gap than the seed it started from, or make a small loop.
     """
     chosen = measure(best)
     if polished is not None and polished.fitness < best.fitness:

@@ -153,7 +153,7 @@ def launch(
     polished = None
     if opts.method is not None and stop_reason != "interrupted":
         polished = _polish(batch, progress, opts, place, early)
-    seeds = batch.seeds if opts.init == "lsq" and opts.method is not None else None
+    seeds = batch.seeds if polished is not None and opts.init == "lsq" else None
     return Launched(preps, opts, place, progress, polished, seeds, stop_reason, start, timings)
 
 
