@@ -294,7 +294,7 @@ def test_any_count_of_cpu_devices_gives_the_same_curves():
         import json, sys, jax
         jax.config.update("jax_num_cpu_devices", int(sys.argv[1]))
         import tests.test_batch as tb
-        from swarmcurves_jax import Curve, fit, fit_many, fit_stream, make_knots
+        from swarmcurves_jax import fit, fit_many, fit_stream
         from swarmcurves_jax.devices import cpu_devices
         sets = tb._dealt_sets()
         lone = [fit(p, **tb.DEALT) for p in sets]
