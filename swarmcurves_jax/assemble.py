@@ -61,6 +61,8 @@ def collect(run: Launched) -> list[FitResult]:
     else:
         timings["call"] = time.perf_counter() - run.start  # swarm and polish, queued
     history = np.concatenate(place.get(progress.history), axis=2)
+    # the least-squares seeds are candidates where the polish ran (not after an interrupt)
+    seeds = run.seeds if polished is not None and opts.init == "lsq" else None
     results = []
     for b, prep in enumerate(preps):
         data_turning = turning(prep.norm_pts, prep.space.closed)
@@ -72,7 +74,7 @@ def collect(run: Launched) -> list[FitResult]:
                 if polished is None
                 else Candidate(polished[0][b, i], float(polished[1][b, i]), "polish")
             )
-            seed = None if run.seeds is None else Candidate(run.seeds[b, i], None, "seed")
+            seed = None if seeds is None else Candidate(seeds[b, i], None, "seed")
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
             chosen = select(best, other, on_data, data_turning, seed)
@@ -124,34 +126,34 @@ def select(
     the data (``data_turning``) do: the fitness is the device's estimate, and neither it
     nor the one-sided error sees a polish that lowers it by sending a stretch of curve
     away from the data or folding it back on itself.  Then the swarm's least-squares
-    ``seed``, where it is closer to the data (:func:`_closer`) and turns no more than
-    that: the swarm minimises a mean, and with too few control points for the shape its
-    curve can leave a larger gap than the seed it started from, or make a small loop.
+    ``seed``, where it is closer to the data (a lower mean, :func:`_lower_mean`, or a
+    smaller worst gap, :func:`_smaller_gap`) and turns no more than that: the swarm
+    minimises a mean, and with too few control points for the shape its curve can leave
+    a larger gap than the seed it started from, or make a small loop.
     """
     chosen = measure(best)
     if polished is not None and polished.fitness < best.fitness:
         other = measure(polished)
-        if _closer(other, chosen, mean_only=True) and _turns_as_data(other, chosen, data_turning):
+        if _lower_mean(other, chosen) and _turns_as_data(other, chosen, data_turning):
             chosen = other
     if seed is not None:
         other = measure(seed)
-        if _closer(other, chosen) and _turns_as_data(other, chosen, data_turning):
+        closer = _lower_mean(other, chosen) or _smaller_gap(other, chosen)
+        if closer and _turns_as_data(other, chosen, data_turning):
             chosen = other
     return chosen
 
 
-def _closer(other: Measured, chosen: Measured, mean_only: bool = False) -> bool:
-    """Whether ``other`` is closer to the data than ``chosen``: a lower two-sided mean
-    deviation, or (unless ``mean_only``) a smaller largest data distance and no larger
-    largest deviation, the two ways a curve's worst gap is measured."""
-    a, b = other.deviation, chosen.deviation
-    if a.mean_deviation < _or_inf(b.mean_deviation):
-        return True
-    if mean_only:
-        return False
-    return bool(np.max(other.distances) < np.max(chosen.distances)) and (
-        a.max_deviation <= _or_inf(b.max_deviation)
-    )
+def _lower_mean(other: Measured, chosen: Measured) -> bool:
+    """Whether ``other``'s two-sided mean deviation is the lower."""
+    return other.deviation.mean_deviation < _or_inf(chosen.deviation.mean_deviation)
+
+
+def _smaller_gap(other: Measured, chosen: Measured) -> bool:
+    """Whether ``other``'s worst gap is the smaller both ways it is measured: a smaller
+    largest data distance and no larger largest deviation."""
+    nearer = bool(np.max(other.distances) < np.max(chosen.distances))
+    return nearer and other.deviation.max_deviation <= _or_inf(chosen.deviation.max_deviation)
 
 
 def _turns_as_data(other: Measured, chosen: Measured, data_turning: float) -> bool:

@@ -77,7 +77,7 @@ class Launched(NamedTuple):
     place: Placement
     progress: Progress
     polished: tuple | None  # the polish's (positions, fitness), device arrays
-    seeds: np.ndarray | None  # the least-squares seeds, candidates beside the polish's
+    seeds: np.ndarray  # the least-squares seeds in float64 (curves, swarms, size)
     stop_reason: str
     start: float
     timings: dict
@@ -153,8 +153,9 @@ def launch(
     polished = None
     if opts.method is not None and stop_reason != "interrupted":
         polished = _polish(batch, progress, opts, place, early)
-    seeds = batch.seeds if polished is not None and opts.init == "lsq" else None
-    return Launched(preps, opts, place, progress, polished, seeds, stop_reason, start, timings)
+    return Launched(
+        preps, opts, place, progress, polished, batch.seeds, stop_reason, start, timings
+    )
 
 
 def _start_draws(keys, pair_ids, space: Layout, opts: FitOptions) -> Future:

@@ -178,17 +178,14 @@ def _select(polished=None, seed=None):
     """``select`` on stand-ins: the swarm's best has fitness 2e-3, mean deviation 2e-4,
     largest deviation and data distance 5e-3, and turns 5.5 rad, for data whose polyline
     turns 6 rad; ``polished``: (fitness, measured), ``seed``: measured."""
-    measured = {"best": _measured("best", 2e-4, 5.5)}
-    best = Candidate(np.zeros(3), 2e-3, "swarm")
-    other = seed_candidate = None
+    measured = {"swarm": _measured("best", 2e-4, 5.5), "polish": None, "seed": seed}
+    other = None
     if polished is not None:
         other = Candidate(np.zeros(3), polished[0], "polish")
-        measured["polished"] = polished[1]
-    if seed is not None:
-        seed_candidate = Candidate(np.zeros(3), None, "seed")
-        measured["seed"] = seed
-    by_id = {id(best): "best", id(other): "polished", id(seed_candidate): "seed"}
-    pick = lambda c: measured[by_id[id(c)]]  # noqa: E731
+        measured["polish"] = polished[1]
+    seed_candidate = None if seed is None else Candidate(np.zeros(3), None, "seed")
+    best = Candidate(np.zeros(3), 2e-3, "swarm")
+    pick = lambda c: measured[c.source]  # noqa: E731
     return select(best, other, pick, data_turning=6.0, seed=seed_candidate).name
 
 
