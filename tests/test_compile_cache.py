@@ -13,11 +13,12 @@ import pytest
 
 from swarmcurves_jax import compile_cache, fit
 
-# A fresh process fits a short call and prints how many programs it read back from the
-# persistent cache, the folder JAX used, and the curves (their control points).
+# A fresh process fits a short call (its keywords: JSON in the first argument) and prints
+# how many programs it read back from the persistent cache, the folder JAX used, and the
+# curves (their control points).
 SCRIPT = textwrap.dedent(
     """
-    import json, logging
+    import json, logging, sys
     import numpy as np
     from swarmcurves_jax import compile_cache, fit
 
@@ -30,7 +31,7 @@ SCRIPT = textwrap.dedent(
     logger.addHandler(Hits())
     logger.setLevel(logging.DEBUG)
     u = np.linspace(0, 1, 70)
-    result = fit(np.c_[u, np.sin(4 * u)], cps=[5, 6], particles=8, iterations=20)
+    result = fit(np.c_[u, np.sin(4 * u)], **json.loads(sys.argv[1]))
     print(json.dumps({
         "hits": len(hits),
         "folder": str(compile_cache.cache_dir()),
@@ -40,11 +41,19 @@ SCRIPT = textwrap.dedent(
 )
 
 
-def run_fresh(env_changes, tmp_path):
+#: A call of every program kind: the draws, the swarm and the polish.
+CALL = dict(cps=[5, 6], particles=8, iterations=20)
+
+
+def run_fresh(env_changes, tmp_path, call=CALL):
     env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "SWARMCURVES_"))}
     env.update(XDG_CACHE_HOME=str(tmp_path / "home-cache"), **env_changes)
     done = subprocess.run(
-        [sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=300
+        [sys.executable, "-c", SCRIPT, json.dumps(call)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout.strip().splitlines()[-1]), done.stderr
@@ -81,7 +90,9 @@ def test_programs_are_kept_in_the_users_cache_read_back_and_survive_damage(tmp_p
 
 
 def test_off_keeps_nothing(tmp_path):
-    off, _ = run_fresh({compile_cache.ENV: "off"}, tmp_path)
+    # a polygon's swarm alone: what is checked is where programs go, not which
+    call = dict(cps=[5], degrees=1, particles=8, iterations=20, refine=False)
+    off, _ = run_fresh({compile_cache.ENV: "off"}, tmp_path, call)
     assert off["folder"] == "None" and not (tmp_path / "home-cache").exists()
 
 
