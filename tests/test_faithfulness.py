@@ -178,13 +178,12 @@ def _select(polished=None, seed=None):
     """``select`` on stand-ins: the swarm's best has fitness 2e-3, mean deviation 2e-4,
     largest deviation and data distance 5e-3, and turns 5.5 rad, for data whose polyline
     turns 6 rad; ``polished``: (fitness, measured), ``seed``: measured."""
-    measured = {"swarm": _measured("best", 2e-4, 5.5), "polish": None, "seed": seed}
-    other = None
-    if polished is not None:
-        other = Candidate(np.zeros(3), polished[0], "polish")
-        measured["polish"] = polished[1]
-    seed_candidate = None if seed is None else Candidate(np.zeros(3), None, "seed")
     best = Candidate(np.zeros(3), 2e-3, "swarm")
+    other = None if polished is None else Candidate(np.zeros(3), polished[0], "polish")
+    seed_candidate = None if seed is None else Candidate(np.zeros(3), None, "seed")
+    measured = {"swarm": _measured("best", 2e-4, 5.5), "seed": seed}
+    if polished is not None:
+        measured["polish"] = polished[1]
     pick = lambda c: measured[c.source]  # noqa: E731
     return select(best, other, pick, data_turning=6.0, seed=seed_candidate).name
 
