@@ -104,10 +104,12 @@ def collect(run: Launched) -> list[FitResult]:
 
 
 #: How much more than the swarm's curve (or the data polyline, if that turns more) a
-#: polished curve may turn: a quarter turn.  A fold, a loop or a horn at a corner adds
-#: about half a turn or more, whatever its size; a curve that follows the data turns
-#: about as they do (the polish's own fold term, :func:`~.excursions.sample_folds`, sees
-#: a fold only where its samples fall, and can miss one between them).
+#: polished curve or the seed may turn, and how much more than the data polyline a curve
+#: turns before it counts as looping where the data do not: a quarter turn.  A fold, a
+#: loop or a horn at a corner adds about half a turn or more, whatever its size; a curve
+#: that follows the data turns about as they do (the polish's own fold term,
+#: :func:`~.excursions.sample_folds`, sees a fold only where its samples fall, and can
+#: miss one between them).
 EXTRA_TURNING = 0.5 * math.pi
 
 
@@ -129,19 +131,32 @@ def select(
     ``seed``, where it is closer to the data (a lower mean, :func:`_lower_mean`, or a
     smaller worst gap, :func:`_smaller_gap`) and turns no more than that: the swarm
     minimises a mean, and with too few control points for the shape its curve can leave
-    a larger gap than the seed it started from, or make a small loop.
+    a larger gap than the seed it started from, or make a small loop.  Either also
+    replaces a curve that loops where the data do not, whatever its fitness, if it does
+    not and strays less (:func:`_untangles`): the fitness samples the curve a few times a
+    span, and a loop between its samples costs it nothing.
     """
     chosen = measure(best)
-    if polished is not None and polished.fitness < best.fitness:
-        other = measure(polished)
-        if _lower_mean(other, chosen) and _turns_as_data(other, chosen, data_turning):
-            chosen = other
+    if polished is not None:
+        lower = polished.fitness < best.fitness
+        if lower or _loops(chosen, data_turning):
+            other = measure(polished)
+            if _replaces(other, chosen, lower and _lower_mean(other, chosen), data_turning):
+                chosen = other
     if seed is not None:
         other = measure(seed)
         closer = _lower_mean(other, chosen) or _smaller_gap(other, chosen)
-        if closer and _turns_as_data(other, chosen, data_turning):
+        if _replaces(other, chosen, closer, data_turning):
             chosen = other
     return chosen
+
+
+def _replaces(other: Measured, chosen: Measured, closer: bool, data_turning: float) -> bool:
+    """Whether ``other`` is reported instead of ``chosen``: ``closer`` to the data (the
+    caller's test) and turning as they do, or untangling a loop of ``chosen``."""
+    if closer and _turns_as_data(other, chosen, data_turning):
+        return True
+    return _untangles(other, chosen, data_turning)
 
 
 def _lower_mean(other: Measured, chosen: Measured) -> bool:
@@ -154,6 +169,21 @@ def _smaller_gap(other: Measured, chosen: Measured) -> bool:
     largest data distance and no larger largest deviation."""
     nearer = bool(np.max(other.distances) < np.max(chosen.distances))
     return nearer and other.deviation.max_deviation <= _or_inf(chosen.deviation.max_deviation)
+
+
+def _loops(m: Measured, data_turning: float) -> bool:
+    """Whether a curve loops where the data do not: it turns more than
+    :data:`EXTRA_TURNING` beyond the data polyline."""
+    return m.deviation.turning > data_turning + EXTRA_TURNING
+
+
+def _untangles(other: Measured, chosen: Measured, data_turning: float) -> bool:
+    """Whether ``chosen`` loops where the data do not and ``other`` does not, with a
+    smaller largest deviation: a small loop at a sharp corner of the data lowers the mean
+    distance there and leaves the data."""
+    if not _loops(chosen, data_turning) or _loops(other, data_turning):
+        return False
+    return other.deviation.max_deviation < _or_inf(chosen.deviation.max_deviation)
 
 
 def _turns_as_data(other: Measured, chosen: Measured, data_turning: float) -> bool:
