@@ -244,23 +244,20 @@ LOOPING = 6.0 + 0.5 * np.pi + 0.5  # more than a quarter turn beyond the data's 
 
 
 @pytest.mark.parametrize(
-    "source, other, kept",
+    "which, other, kept",
     [
         ("seed", (3e-4, 6.0, 1e-2), "seed"),  # a higher mean, but no loop and strays less
         ("seed", (3e-4, 6.0, 6e-2), "best"),  # strays more than the loop does
         ("seed", (3e-4, LOOPING, 1e-2), "best"),  # loops too
-        ("polish", (3e-4, 6.0, 1e-2), "polished"),  # whatever its fitness (above the best's)
-        ("polish", (1e-4, LOOPING, 1e-2), "best"),  # loops too
+        ("polished", (3e-4, 6.0, 1e-2), "polished"),  # whatever its fitness (above the best's)
+        ("polished", (1e-4, LOOPING, 1e-2), "best"),  # loops too
     ],
 )
-def test_a_curve_that_loops_where_the_data_do_not_gives_way(source, other, kept):
+def test_a_curve_that_loops_where_the_data_do_not_gives_way(which, other, kept):
     """The swarm's best loops (it turns more than a quarter turn beyond the data polyline)
     and strays 5e-2 from the data: a candidate that does not loop and strays less is
     reported instead, whatever its mean deviation or fitness."""
     mean, turns, largest = other
-    candidate = _measured("seed" if source == "seed" else "polished", mean, turns, largest, largest)
-    if source == "seed":
-        chosen = _select(seed=candidate, turns=LOOPING, largest=5e-2)
-    else:
-        chosen = _select(polished=(3e-3, candidate), turns=LOOPING, largest=5e-2)
-    assert chosen == kept
+    candidate = _measured(which, mean, turns, largest, largest)
+    given = dict(seed=candidate) if which == "seed" else dict(polished=(3e-3, candidate))
+    assert _select(**given, turns=LOOPING, largest=5e-2) == kept
