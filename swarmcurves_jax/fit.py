@@ -8,7 +8,9 @@ A fit is a pipeline of stages, each in its own module:
 3. :mod:`~swarmcurves_jax.search` runs the swarms, launched in chunks by
    :mod:`~swarmcurves_jax.launch` (over devices: :mod:`~swarmcurves_jax.dealing`);
 4. :mod:`~swarmcurves_jax.polish` refines every swarm's solution;
-5. :mod:`~swarmcurves_jax.assemble` measures and selects the solutions and builds the
+5. :mod:`~swarmcurves_jax.selection` measures every swarm's candidates both ways and
+   keeps one;
+6. :mod:`~swarmcurves_jax.assemble` builds the curves and the
    :class:`~swarmcurves_jax.results.FitResult`.
 """
 

@@ -10,11 +10,11 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from swarmcurves_jax import fit, normalise
-from swarmcurves_jax.assemble import Candidate, select
 from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
 from swarmcurves_jax.excursions import data_segments, own_segments, sample_folds
 from swarmcurves_jax.fitness import excess2_at
 from swarmcurves_jax.measures import Deviations, deviations, turning
+from swarmcurves_jax.selection import Candidate, select
 
 _segments = jax.jit(data_segments, static_argnums=2)  # one compilation per shape
 

@@ -1,0 +1,149 @@
+"""Selection: which of a swarm's solutions it reports.
+
+Every swarm has up to three candidates: its best position, its polished one
+(:mod:`swarmcurves_jax.polish`) and its least-squares seed
+(:mod:`swarmcurves_jax.seeds`).  :func:`measure` measures each by true projection both
+ways (:mod:`swarmcurves_jax.projection`, :mod:`swarmcurves_jax.measures`) in float64 on
+the host; :func:`select` keeps the one that stays closest to the data without looping
+where the data do not.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .layout import Layout, knot_vector
+from .measures import Deviations, deviations
+from .projection import project_points
+
+__all__ = ["Candidate", "Measured", "EXTRA_TURNING", "select", "measure"]
+
+
+class Candidate(NamedTuple):
+    """A swarm's solution: its flat position, its fitness on the device (None for the
+    seed, which the host made) and where it comes from: "swarm", "polish" or "seed"."""
+
+    position: np.ndarray
+    fitness: float | None
+    source: str
+
+
+class Measured(NamedTuple):
+    """A candidate measured on the host (normalised frame, float64)."""
+
+    candidate: Candidate
+    ctrl: np.ndarray
+    weights: np.ndarray
+    knots: np.ndarray
+    distances: np.ndarray  # each point's distance to the curve
+    feet: np.ndarray  # each point's foot parameter
+    deviation: Deviations
+
+
+#: How much more than the swarm's curve (or the data polyline, if that turns more) a
+#: polished curve or the seed may turn, and how much more than the data polyline a curve
+#: turns before it counts as looping where the data do not: a quarter turn.  A fold, a
+#: loop or a horn at a corner adds about half a turn or more, whatever its size; a curve
+#: that follows the data turns about as they do (the polish's own fold term,
+#: :func:`~.excursions.sample_folds`, sees a fold only where its samples fall, and can
+#: miss one between them).
+EXTRA_TURNING = 0.5 * math.pi
+
+
+def select(
+    best: Candidate,
+    polished: Candidate | None,
+    measure,
+    data_turning: float,
+    seed: Candidate | None = None,
+) -> Measured:
+    """The solution a swarm reports, judged on the host (``measure(candidate)``) by the
+    two-sided measures.
+
+    Its best, or its polished one if that one's fitness is lower, then also its two-sided
+    ``mean_deviation``, and it turns at most :data:`EXTRA_TURNING` more than the best or
+    the data (``data_turning``) do: the fitness is the device's estimate, and neither it
+    nor the one-sided error sees a polish that lowers it by sending a stretch of curve
+    away from the data or folding it back on itself.  Then the swarm's least-squares
+    ``seed``, where it is closer to the data (a lower mean, :func:`_lower_mean`, or a
+    smaller worst gap, :func:`_smaller_gap`) and turns no more than that: the swarm
+    minimises a mean, and with too few control points for the shape its curve can leave
+    a larger gap than the seed it started from, or make a small loop.  Either also
+    replaces a curve that loops where the data do not, whatever its fitness, if it does
+    not and strays less (:func:`_untangles`): the fitness samples the curve a few times a
+    span, and a loop between its samples costs it nothing.
+    """
+    chosen = measure(best)
+    if polished is not None:
+        lower = polished.fitness < best.fitness
+        if lower or _loops(chosen, data_turning):
+            other = measure(polished)
+            if _replaces(other, chosen, lower and _lower_mean(other, chosen), data_turning):
+                chosen = other
+    if seed is not None:
+        other = measure(seed)
+        closer = _lower_mean(other, chosen) or _smaller_gap(other, chosen)
+        if _replaces(other, chosen, closer, data_turning):
+            chosen = other
+    return chosen
+
+
+def _replaces(other: Measured, chosen: Measured, closer: bool, data_turning: float) -> bool:
+    """Whether ``other`` is reported instead of ``chosen``: ``closer`` to the data (the
+    caller's test) and turning as they do, or untangling a loop of ``chosen``."""
+    if closer and _turns_as_data(other, chosen, data_turning):
+        return True
+    return _untangles(other, chosen, data_turning)
+
+
+def _lower_mean(other: Measured, chosen: Measured) -> bool:
+    """Whether ``other``'s two-sided mean deviation is the lower."""
+    return other.deviation.mean_deviation < _or_inf(chosen.deviation.mean_deviation)
+
+
+def _smaller_gap(other: Measured, chosen: Measured) -> bool:
+    """Whether ``other``'s worst gap is the smaller both ways it is measured: a smaller
+    largest data distance and no larger largest deviation."""
+    nearer = bool(np.max(other.distances) < np.max(chosen.distances))
+    return nearer and other.deviation.max_deviation <= _or_inf(chosen.deviation.max_deviation)
+
+
+def _loops(m: Measured, data_turning: float) -> bool:
+    """Whether a curve loops where the data do not: it turns more than
+    :data:`EXTRA_TURNING` beyond the data polyline."""
+    return m.deviation.turning > data_turning + EXTRA_TURNING
+
+
+def _untangles(other: Measured, chosen: Measured, data_turning: float) -> bool:
+    """Whether ``chosen`` loops where the data do not and ``other`` does not, with a
+    smaller largest deviation: a small loop at a sharp corner of the data lowers the mean
+    distance there and leaves the data."""
+    if not _loops(chosen, data_turning) or _loops(other, data_turning):
+        return False
+    return other.deviation.max_deviation < _or_inf(chosen.deviation.max_deviation)
+
+
+def _turns_as_data(other: Measured, chosen: Measured, data_turning: float) -> bool:
+    """Whether ``other`` turns at most :data:`EXTRA_TURNING` more than ``chosen`` or the
+    data polyline, whichever turns more."""
+    room = max(chosen.deviation.turning, data_turning) + EXTRA_TURNING
+    return other.deviation.turning <= room
+
+
+def _or_inf(x: float) -> float:
+    return math.inf if math.isnan(x) else x
+
+
+def measure(candidate: Candidate, k: int, n: int, space: Layout, norm_pts) -> Measured:
+    """A candidate un-padded and measured both ways against the normalised points."""
+    q = np.asarray(candidate.position, dtype=np.float64)
+    t = knot_vector(q, k, n, space)
+    ctrl, log_w = space.split(q)
+    ctrl = ctrl[:n]
+    weights = np.ones(n) if log_w is None else np.exp(log_w[:n] - log_w[:n].max())
+    dist, foot = project_points(norm_pts, ctrl, weights, t, k, space.closed)
+    dev = deviations(norm_pts, ctrl, weights, t, k, space.closed, dist)
+    return Measured(candidate, ctrl, weights, t, dist, foot, dev)
