@@ -37,7 +37,7 @@ def collect(run: Launched) -> list[FitResult]:
     else:
         timings["call"] = time.perf_counter() - run.start  # swarm and polish, queued
     history = np.concatenate(place.get(progress.history), axis=2)
-    # the least-squares seeds are candidates where the polish ran (not after an interrupt)
+    # the least-squares fits are candidates where the polish ran (not after an interrupt)
     seeds = run.seeds if polished is not None and opts.init == "lsq" else None
     results = []
     for b, prep in enumerate(preps):
@@ -50,10 +50,11 @@ def collect(run: Launched) -> list[FitResult]:
                 if polished is None
                 else Candidate(polished[0][b, i], float(polished[1][b, i]), "polish")
             )
-            seed = None if seeds is None else Candidate(seeds[b, i], None, "seed")
+            fits = () if seeds is None else _distinct(seeds[b, i])
+            fits = [Candidate(position, None, "seed") for position in fits]
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
-            chosen = select(best, other, on_data, data_turning, seed)
+            chosen = select(best, other, on_data, data_turning, fits)
             return make_curve(chosen, k, n, int(swarm[2][b, i]), prep)
 
         solutions = host_map(solution, range(len(pairs)))
@@ -77,6 +78,11 @@ def collect(run: Launched) -> list[FitResult]:
             )
         )
     return results
+
+
+def _distinct(rows: np.ndarray) -> list[np.ndarray]:
+    """The rows, each once (the classic fit is often the seed itself)."""
+    return [row for i, row in enumerate(rows) if not any(np.array_equal(row, r) for r in rows[:i])]
 
 
 def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:

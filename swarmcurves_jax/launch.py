@@ -55,7 +55,7 @@ class Batch(NamedTuple):
     state: pso.PSOState  # placeholder (step 0): the program initialises it
     inputs: Inputs
     bases: tuple  # the search's span bases, one per degree group
-    seeds: np.ndarray  # the least-squares seeds in float64, as the host measures them
+    seeds: np.ndarray  # (curves, swarms, 2, size): the seed and the classic fit, float64
 
 
 class Progress(NamedTuple):
@@ -77,7 +77,7 @@ class Launched(NamedTuple):
     place: Placement
     progress: Progress
     polished: tuple | None  # the polish's (positions, fitness), device arrays
-    seeds: np.ndarray  # the least-squares seeds in float64 (curves, swarms, size)
+    seeds: np.ndarray  # (curves, swarms, 2, size): the seed and the classic fit, float64
     stop_reason: str
     start: float
     timings: dict
@@ -203,7 +203,7 @@ def _host_batch(padded, num: int, keys, pair_ids, opts: FitOptions) -> Batch:
         keys=keys,
         pair_ids=pair_ids,
         state=empty_state(len(padded), len(pairs), opts.particles, space.size, opts.dtype),
-        inputs=Inputs(boxes, seeds.astype(opts.dtype), stack("data"), stack("mask")),
+        inputs=Inputs(boxes, seeds[:, :, 0].astype(opts.dtype), stack("data"), stack("mask")),
         bases=tuple(
             stack_bases(pairs[i:j], space.closed, samples, space.n_pad, opts.dtype)
             for _, i, j, samples in groups

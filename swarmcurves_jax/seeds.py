@@ -79,19 +79,21 @@ def _starts(points, closed, even=True):
 
 
 def _polynomial_seed(points, n, k, closed, ends, rounds=20, t=None, even=True):
-    """(control points, mean distance bound) of :func:`least_squares_ctrl`."""
+    """(control points, mean distance bound) of :func:`least_squares_ctrl`, and the
+    control points of its first start, chord lengths (the classic fit)."""
     if t is None:
         t, dense = make_knots(n, k, closed), uniform_grid_design(n, k, closed)
     else:
         dense = design_matrix(_seed_grid(closed), t, k, closed=closed)
-    best = None
+    best = chord = None
     for u in _parameterisations(points, closed, dense, ends, even):
         fit = _corrected(design_matrix(u, t, k, closed=closed), dense, points, ends, rounds)
+        chord = fit[0] if chord is None else chord
         if best is None or fit[1] < best[1]:  # a tie keeps the earlier start
             best = fit
         if best[1] <= EXACT:
             break  # the points lie on this curve: no later start can do better
-    return best
+    return best[0], best[1], chord
 
 
 def _parameterisations(points, closed, dense, ends, even=True):
@@ -172,7 +174,13 @@ def least_squares_nurbs(points, n, k, closed, ends=None, t=None):
     spaced by arc length in ``benchmarks/recovery_rates.py``).  A solution with a weight
     that is not positive is dropped; weights are scaled to a geometric mean of 1.
     """
-    ctrl, err = _polynomial_seed(points, n, k, closed, ends, t=t)  # t None: the cached grid
+    return _nurbs_seed(points, n, k, closed, ends, t)[:2]
+
+
+def _nurbs_seed(points, n, k, closed, ends, t):
+    """(control points, weights) of :func:`least_squares_nurbs`, and the control points
+    of the polynomial seed's chord-length start."""
+    ctrl, err, chord = _polynomial_seed(points, n, k, closed, ends, t=t)  # t None: cached grid
     t = make_knots(n, k, closed) if t is None else t
     best = (ctrl, np.ones(n), err)
     for u in _starts(points, closed):
@@ -183,7 +191,7 @@ def least_squares_nurbs(points, n, k, closed, ends=None, t=None):
             fit_err = np.mean(np.linalg.norm(num - points, axis=1))
             if fit_err < best[2]:
                 best = (*fit, fit_err)
-    return best[0], best[1]
+    return best[0], best[1], chord
 
 
 def _rational_lsq(b, points, ends):
@@ -252,7 +260,12 @@ def _grid_design(n: int, k: int, closed: bool) -> np.ndarray:
 
 
 def seed_positions(pairs, space: Layout, norm_pts, closed, ends, dtype) -> np.ndarray:
-    """One least-squares position per swarm, laid out like a particle."""
+    """Two least-squares positions per swarm, laid out like a particle, shape
+    ``(swarms, 2, size)``: the seed (:func:`least_squares_ctrl`, or
+    :func:`least_squares_nurbs` for rational curves), which starts the swarm, and the
+    classic fit from chord lengths alone (weights 1), which the selection also weighs: the
+    seed is the start nearest the points on average, and where the fit has too few
+    control points for the shape the classic fit can leave the smaller gap."""
 
     def one(pair):
         k, n = pair
@@ -263,12 +276,14 @@ def seed_positions(pairs, space: Layout, norm_pts, closed, ends, dtype) -> np.nd
             first = space.size - space.num_knots
             row[first : first + spans] = np.clip(logits, -KNOT_LOGIT_BOUND, KNOT_LOGIT_BOUND)
             t = knot_vector(row, k, n, space)
+        classic = row.copy()
         if space.rational:
-            ctrl, weights = least_squares_nurbs(norm_pts, n, k, closed, ends, t=t)
+            ctrl, weights, chord = _nurbs_seed(norm_pts, n, k, closed, ends, t)
             row[space.num_ctrl : space.num_ctrl + n] = np.log(weights)
         else:
-            ctrl = least_squares_ctrl(norm_pts, n, k, closed, ends, t=t)
+            ctrl, _, chord = _polynomial_seed(norm_pts, n, k, closed, ends, t=t)
         row[: n * space.dim] = ctrl.ravel()
-        return row
+        classic[: n * space.dim] = chord.ravel()
+        return row, classic
 
-    return np.stack(host_map(one, pairs)).astype(dtype)
+    return np.stack([np.stack(rows) for rows in host_map(one, pairs)]).astype(dtype)

@@ -1,8 +1,8 @@
 """Selection: which of a swarm's solutions it reports.
 
-Every swarm has up to three candidates: its best position, its polished one
-(:mod:`swarmcurves_jax.polish`) and its least-squares seed
-(:mod:`swarmcurves_jax.seeds`).  :func:`measure` measures each by true projection both
+Every swarm has up to four candidates: its best position, its polished one
+(:mod:`swarmcurves_jax.polish`) and two least-squares fits, its seed and the classic
+chord-length fit (:mod:`swarmcurves_jax.seeds`).  :func:`measure` measures each by true projection both
 ways (:mod:`swarmcurves_jax.projection`, :mod:`swarmcurves_jax.measures`) in float64 on
 the host; :func:`select` keeps the one that stays closest to the data without looping
 where the data do not.
@@ -58,7 +58,7 @@ def select(
     polished: Candidate | None,
     measure,
     data_turning: float,
-    seed: Candidate | None = None,
+    seeds: tuple[Candidate, ...] | list[Candidate] = (),
 ) -> Measured:
     """The solution a swarm reports, judged on the host (``measure(candidate)``) by the
     two-sided measures.
@@ -67,11 +67,12 @@ def select(
     ``mean_deviation``, and it turns at most :data:`EXTRA_TURNING` more than the best or
     the data (``data_turning``) do: the fitness is the device's estimate, and neither it
     nor the one-sided error sees a polish that lowers it by sending a stretch of curve
-    away from the data or folding it back on itself.  Then the swarm's least-squares
-    ``seed``, where it is closer to the data (a lower mean, :func:`_lower_mean`, or a
-    smaller worst gap, :func:`_smaller_gap`) and turns no more than that: the swarm
-    minimises a mean, and with too few control points for the shape its curve can leave
-    a larger gap than the seed it started from, or make a small loop.  Either also
+    away from the data or folding it back on itself.  Then each least-squares fit in
+    ``seeds`` (the swarm's seed, the classic chord-length fit), in turn, where it is
+    closer to the data (a lower mean, :func:`_lower_mean`, or a smaller worst gap,
+    :func:`_smaller_gap`) and turns no more than that: the swarm minimises a mean, and
+    with too few control points for the shape its curve can leave a larger gap than a
+    least-squares fit, or make a small loop.  Any of them also
     replaces a curve that loops where the data do not, whatever its fitness, if it does
     not and strays less (:func:`_untangles`): the fitness samples the curve a few times a
     span, and a loop between its samples costs it nothing.
@@ -83,7 +84,7 @@ def select(
             other = measure(polished)
             if _replaces(other, chosen, lower and _lower_mean(other, chosen), data_turning):
                 chosen = other
-    if seed is not None:
+    for seed in seeds:
         other = measure(seed)
         closer = _lower_mean(other, chosen) or _smaller_gap(other, chosen)
         if _replaces(other, chosen, closer, data_turning):

@@ -189,19 +189,24 @@ def _measured(name, mean, turns, largest=5e-3, farthest=5e-3):
     return _Measured(Deviations(largest, mean, 0.0, 0.0, 0.0, turns), np.r_[0.0, farthest], name)
 
 
-def _select(polished=None, seed=None, turns=5.5, largest=5e-3):
+def _select(polished=None, seed=None, turns=5.5, largest=5e-3, classic=None):
     """``select`` on stand-ins: the swarm's best has fitness 2e-3, mean deviation 2e-4,
     largest deviation ``largest``, largest data distance 5e-3, and turns ``turns`` rad,
-    for data whose polyline turns 6 rad; ``polished``: (fitness, measured), ``seed``:
-    measured."""
+    for data whose polyline turns 6 rad; ``polished``: (fitness, measured), ``seed`` and
+    the ``classic`` least-squares fit: measured."""
     best = Candidate(np.zeros(3), 2e-3, "swarm")
-    other = None if polished is None else Candidate(np.zeros(3), polished[0], "polish")
-    seed_candidate = None if seed is None else Candidate(np.zeros(3), None, "seed")
-    measured = {"swarm": _measured("best", 2e-4, turns, largest), "seed": seed}
+    measured = {id(best): _measured("best", 2e-4, turns, largest)}
+    other = None
     if polished is not None:
-        measured["polish"] = polished[1]
-    pick = lambda c: measured[c.source]  # noqa: E731
-    return select(best, other, pick, data_turning=6.0, seed=seed_candidate).name
+        other = Candidate(np.zeros(3), polished[0], "polish")
+        measured[id(other)] = polished[1]
+    fits = []
+    for m in (seed, classic):
+        if m is not None:
+            fits.append(Candidate(np.zeros(3), None, "seed"))
+            measured[id(fits[-1])] = m
+    pick = lambda c: measured[id(c)]  # noqa: E731
+    return select(best, other, pick, data_turning=6.0, seeds=fits).name
 
 
 @pytest.mark.parametrize(
@@ -238,6 +243,16 @@ def test_the_seed_is_kept_where_it_is_closer_to_the_data(seed, kept):
     assert _select(polished=(1e-3, smaller_gap)) == "best"
     polished = (1e-3, _measured("polished", 1e-4, 6.0))  # kept against the best
     assert _select(polished, _measured("seed", 1.5e-4, 6.0, 6e-3, 6e-3)) == "polished"
+
+
+def test_the_classic_fit_is_weighed_after_the_seed():
+    """The chord-length least-squares fit against whatever the seed left chosen, by the
+    seed's rule: kept where it leaves a smaller gap both ways than the seed that replaced
+    the best, not where it is only closer than the best was."""
+    seed = _measured("seed", 1.5e-4, 6.0, 6e-3, 6e-3)  # a lower mean than the best's
+    assert _select(seed=seed, classic=_measured("classic", 1.8e-4, 6.0, 4e-3, 4e-3)) == "classic"
+    assert _select(seed=seed, classic=_measured("classic", 1.8e-4, 6.0, 5e-3, 7e-3)) == "seed"
+    assert _select(classic=_measured("classic", 1.8e-4, 6.0, 7e-3, 7e-3)) == "classic"
 
 
 LOOPING = 6.0 + 0.5 * np.pi + 0.5  # more than a quarter turn beyond the data's 6 rad

@@ -392,7 +392,8 @@ def test_search_apart_agrees_with_the_fused_search(monkeypatch, rational, search
 
 def test_host_work_on_threads_equals_the_plain_loop():
     """The seeds (and projections) run on a thread per CPU (``devices.host_map``): in order,
-    each swarm's seed exactly its own least-squares fit, and an error comes out as raised."""
+    each swarm's seed and classic fit exactly its own least-squares fits, and an error comes
+    out as raised."""
     from swarmcurves_jax.devices import host_map
     from swarmcurves_jax.layout import Layout
     from swarmcurves_jax.prepare import normalise
@@ -403,10 +404,12 @@ def test_host_work_on_threads_equals_the_plain_loop():
     space = Layout(n_pad=8, dim=2, rational=False, num_knots=0)
     ends = (pts[0], pts[-1])
     seeds = seed_positions(pairs, space, pts, False, ends, np.float64)
-    for (k, n), seed in zip(pairs, seeds, strict=True):
+    for (k, n), (seed, classic) in zip(pairs, seeds, strict=True):
         expected = least_squares_ctrl(pts, n, k, False, ends).ravel()
         np.testing.assert_array_equal(seed[: 2 * n], expected)
-        assert not seed[2 * n :].any()
+        chord = least_squares_ctrl(pts, n, k, False, ends, even=False).ravel()
+        np.testing.assert_array_equal(classic[: 2 * n], chord)
+        assert not seed[2 * n :].any() and not classic[2 * n :].any()
     assert host_map(lambda x: x * x, range(50)) == [x * x for x in range(50)]
 
     def fails(x):
