@@ -50,8 +50,7 @@ def collect(run: Launched) -> list[FitResult]:
                 if polished is None
                 else Candidate(polished[0][b, i], float(polished[1][b, i]), "polish")
             )
-            fits = () if seeds is None else _distinct(seeds[b, i])
-            fits = [Candidate(position, None, "seed") for position in fits]
+            fits = [] if seeds is None else _least_squares(seeds[b, i])
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
             chosen = select(best, other, on_data, data_turning, fits)
@@ -80,9 +79,14 @@ def collect(run: Launched) -> list[FitResult]:
     return results
 
 
-def _distinct(rows: np.ndarray) -> list[np.ndarray]:
-    """The rows, each once (the classic fit is often the seed itself)."""
-    return [row for i, row in enumerate(rows) if not any(np.array_equal(row, r) for r in rows[:i])]
+def _least_squares(rows: np.ndarray) -> list[Candidate]:
+    """A swarm's seed and its classic chord-length fit as candidates (the classic one only
+    where it differs: often it is the seed)."""
+    seed, classic = rows
+    fits = [Candidate(seed, None, "seed")]
+    if not np.array_equal(seed, classic):
+        fits.append(Candidate(classic, None, "classic"))
+    return fits
 
 
 def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:

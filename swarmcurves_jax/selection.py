@@ -2,10 +2,10 @@
 
 Every swarm has up to four candidates: its best position, its polished one
 (:mod:`swarmcurves_jax.polish`) and two least-squares fits, its seed and the classic
-chord-length fit (:mod:`swarmcurves_jax.seeds`).  :func:`measure` measures each by true projection both
-ways (:mod:`swarmcurves_jax.projection`, :mod:`swarmcurves_jax.measures`) in float64 on
-the host; :func:`select` keeps the one that stays closest to the data without looping
-where the data do not.
+chord-length fit (:mod:`swarmcurves_jax.seeds`).  :func:`measure` measures each by true
+projection both ways (:mod:`swarmcurves_jax.projection`, :mod:`swarmcurves_jax.measures`)
+in float64 on the host; :func:`select` keeps the one that stays closest to the data
+without looping where the data do not.
 """
 
 from __future__ import annotations
@@ -24,7 +24,8 @@ __all__ = ["Candidate", "Measured", "EXTRA_TURNING", "select", "measure"]
 
 class Candidate(NamedTuple):
     """A swarm's solution: its flat position, its fitness on the device (None for the
-    seed, which the host made) and where it comes from: "swarm", "polish" or "seed"."""
+    least-squares fits, which the host made) and where it comes from: "swarm", "polish",
+    "seed" or "classic"."""
 
     position: np.ndarray
     fitness: float | None
