@@ -11,6 +11,7 @@ without looping where the data do not.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -59,7 +60,7 @@ def select(
     polished: Candidate | None,
     measure,
     data_turning: float,
-    seeds: tuple[Candidate, ...] | list[Candidate] = (),
+    seeds: Sequence[Candidate] = (),
 ) -> Measured:
     """The solution a swarm reports, judged on the host (``measure(candidate)``) by the
     two-sided measures.
