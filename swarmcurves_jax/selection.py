@@ -60,7 +60,7 @@ def select(
     polished: Candidate | None,
     measure,
     data_turning: float,
-    seeds: Sequence[Candidate] = (),
+    fits: Sequence[Candidate] = (),
 ) -> Measured:
     """The solution a swarm reports, judged on the host (``measure(candidate)``) by the
     two-sided measures.
@@ -70,7 +70,7 @@ def select(
     the data (``data_turning``) do: the fitness is the device's estimate, and neither it
     nor the one-sided error sees a polish that lowers it by sending a stretch of curve
     away from the data or folding it back on itself.  Then each least-squares fit in
-    ``seeds`` (the swarm's seed, the classic chord-length fit), in turn, where it is
+    ``fits`` (the swarm's seed, the classic chord-length fit), in turn, where it is
     closer to the data (a lower mean, :func:`_lower_mean`, or a smaller worst gap,
     :func:`_smaller_gap`) and turns no more than that: the swarm minimises a mean, and
     with too few control points for the shape its curve can leave a larger gap than a
@@ -86,8 +86,8 @@ def select(
             other = measure(polished)
             if _replaces(other, chosen, lower and _lower_mean(other, chosen), data_turning):
                 chosen = other
-    for seed in seeds:
-        other = measure(seed)
+    for fit in fits:
+        other = measure(fit)
         closer = _lower_mean(other, chosen) or _smaller_gap(other, chosen)
         if _replaces(other, chosen, closer, data_turning):
             chosen = other

@@ -225,12 +225,12 @@ def _select(polished=None, seed=None, turns=5.5, largest=5e-3, classic=None):
         other = Candidate(np.zeros(3), polished[0], "polish")
         measured[id(other)] = polished[1]
     fits = []
-    for m in (seed, classic):
+    for source, m in (("seed", seed), ("classic", classic)):
         if m is not None:
-            fits.append(Candidate(np.zeros(3), None, "seed"))
+            fits.append(Candidate(np.zeros(3), None, source))
             measured[id(fits[-1])] = m
     pick = lambda c: measured[id(c)]  # noqa: E731
-    return select(best, other, pick, data_turning=6.0, seeds=fits).name
+    return select(best, other, pick, data_turning=6.0, fits=fits).name
 
 
 @pytest.mark.parametrize(
