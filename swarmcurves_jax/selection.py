@@ -66,10 +66,11 @@ def select(
     two-sided measures.
 
     Its best, or its polished one if that one's fitness is lower, then also its two-sided
-    ``mean_deviation``, and it turns at most :data:`EXTRA_TURNING` more than the best or
-    the data (``data_turning``) do: the fitness is the device's estimate, and neither it
-    nor the one-sided error sees a polish that lowers it by sending a stretch of curve
-    away from the data or folding it back on itself.  Then each least-squares fit in
+    ``mean_deviation`` and the two measures together (:func:`_closer_together`), and it
+    turns at most :data:`EXTRA_TURNING` more than the best or the data
+    (``data_turning``) do: the fitness is the device's estimate, and neither it nor the
+    one-sided error sees a polish that lowers it by sending a stretch of curve away from
+    the data or folding it back on itself.  Then each least-squares fit in
     ``fits`` (the swarm's seed, the classic chord-length fit), in turn, where it is
     closer to the data (a lower mean, :func:`_lower_mean`, or a smaller worst gap,
     :func:`_smaller_gap`) and turns no more than that: the swarm minimises a mean, and
@@ -84,7 +85,8 @@ def select(
         lower = polished.fitness < best.fitness
         if lower or _loops(chosen, data_turning):
             other = measure(polished)
-            if _replaces(other, chosen, lower and _lower_mean(other, chosen), data_turning):
+            closer = lower and _lower_mean(other, chosen) and _closer_together(other, chosen)
+            if _replaces(other, chosen, closer, data_turning):
                 chosen = other
     for fit in fits:
         other = measure(fit)
@@ -105,6 +107,18 @@ def _replaces(other: Measured, chosen: Measured, closer: bool, data_turning: flo
 def _lower_mean(other: Measured, chosen: Measured) -> bool:
     """Whether ``other``'s two-sided mean deviation is the lower."""
     return other.deviation.mean_deviation < _or_inf(chosen.deviation.mean_deviation)
+
+
+def _closer_together(other: Measured, chosen: Measured) -> bool:
+    """Whether ``other`` is the closer by both two-sided measures taken together, the
+    product of ``mean_deviation`` and ``max_deviation``: a polish may widen the largest
+    gap only by a smaller factor than it narrows the mean.  A polish that lowers the mean
+    by pulling most of the curve onto the data while a stretch of it drifts away (across
+    a sharp turn between two samples, say) is not reported."""
+    mine, theirs = other.deviation, chosen.deviation
+    return mine.mean_deviation * mine.max_deviation < _or_inf(
+        theirs.mean_deviation * theirs.max_deviation
+    )
 
 
 def _smaller_gap(other: Measured, chosen: Measured) -> bool:

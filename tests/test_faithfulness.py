@@ -236,15 +236,21 @@ def _select(polished=None, seed=None, turns=5.5, largest=5e-3, classic=None):
 @pytest.mark.parametrize(
     "polished, kept",
     [
-        ((1e-3, 1e-4, 7.0), "polished"),  # lower fitness and mean, turns as the data
-        ((1e-3, 1e-4, 6.0 + 0.5 * np.pi + 0.1), "best"),  # folds: a quarter turn more
-        ((1e-3, 3e-4, 7.0), "best"),  # its mean deviation is higher
-        ((3e-3, 1e-4, 7.0), "best"),  # its fitness is higher
+        ((1e-3, 1e-4, 7.0, 5e-3), "polished"),  # lower fitness and mean, turns as the data
+        ((1e-3, 1e-4, 6.0 + 0.5 * np.pi + 0.1, 5e-3), "best"),  # folds: a quarter turn more
+        ((1e-3, 3e-4, 7.0, 5e-3), "best"),  # its mean deviation is higher
+        ((3e-3, 1e-4, 7.0, 5e-3), "best"),  # its fitness is higher
+        ((1e-3, 1e-4, 7.0, 9e-3), "polished"),  # half the mean, a gap 1.8 times as wide
+        ((1e-3, 1e-4, 7.0, 1.1e-2), "best"),  # half the mean, a gap 2.2 times as wide
     ],
 )
-def test_a_polished_curve_that_folds_is_not_kept(polished, kept):
-    fitness, mean, turns = polished
-    assert _select(polished=(fitness, _measured("polished", mean, turns))) == kept
+def test_a_polished_curve_that_folds_or_opens_a_gap_is_not_kept(polished, kept):
+    """The best: fitness 2e-3, mean deviation 2e-4, largest deviation 5e-3 (``_select``).
+    A polish is kept where it lowers the fitness and the mean, turns as the data do, and
+    widens the largest gap by a smaller factor than it narrows the mean."""
+    fitness, mean, turns, largest = polished
+    measured = _measured("polished", mean, turns, largest, min(largest, 5e-3))
+    assert _select(polished=(fitness, measured)) == kept
 
 
 @pytest.mark.parametrize(
@@ -260,7 +266,7 @@ def test_a_polished_curve_that_folds_is_not_kept(polished, kept):
 def test_the_seed_is_kept_where_it_is_closer_to_the_data(seed, kept):
     """The least-squares seed against the swarm's best (see ``_select``): kept where its
     mean deviation is lower, or both its largest deviation and its largest data distance
-    are, and it turns as the data do.  A polish is judged on its mean alone."""
+    are, and it turns as the data do.  A polish is not kept for a smaller gap alone."""
     mean, turns, largest, farthest = seed
     assert _select(seed=_measured("seed", mean, turns, largest, farthest)) == kept
     smaller_gap = _measured("polished", 3e-4, 6.0, 4e-3, 4e-3)
