@@ -65,10 +65,10 @@ def select(
     """The solution a swarm reports, judged on the host (``measure(candidate)``) by the
     two-sided measures.
 
-    Its best, or its polished one if that one's fitness is lower, then also its two-sided
-    ``mean_deviation`` and the two measures together (:func:`_closer_together`), and it
-    turns at most :data:`EXTRA_TURNING` more than the best or the data
-    (``data_turning``) do: the fitness is the device's estimate, and neither it nor the
+    Its best, or its polished one if that one has the lower fitness, the lower two-sided
+    ``mean_deviation`` and the lower product of the two measures
+    (:func:`_closer_together`), and turns at most :data:`EXTRA_TURNING` more than the best
+    or the data (``data_turning``) do: the fitness is the device's estimate, and neither it nor the
     one-sided error sees a polish that lowers it by sending a stretch of curve away from
     the data or folding it back on itself.  Then each least-squares fit in
     ``fits`` (the swarm's seed, the classic chord-length fit), in turn, where it is
