@@ -286,4 +286,4 @@ def seed_positions(pairs, space: Layout, norm_pts, closed, ends, dtype) -> np.nd
         classic[: n * space.dim] = chord.ravel()
         return row, classic
 
-    return np.stack([np.stack(rows) for rows in host_map(one, pairs)]).astype(dtype)
+    return np.asarray(host_map(one, pairs), dtype=dtype)

@@ -68,17 +68,17 @@ def select(
     Its best, or its polished one if that one has the lower fitness, the lower two-sided
     ``mean_deviation`` and the lower product of the two measures
     (:func:`_closer_together`), and turns at most :data:`EXTRA_TURNING` more than the best
-    or the data (``data_turning``) do: the fitness is the device's estimate, and neither it nor the
-    one-sided error sees a polish that lowers it by sending a stretch of curve away from
-    the data or folding it back on itself.  Then each least-squares fit in
-    ``fits`` (the swarm's seed, the classic chord-length fit), in turn, where it is
-    closer to the data (a lower mean, :func:`_lower_mean`, or a smaller worst gap,
+    or the data (``data_turning``) do: the fitness is the device's estimate, and neither
+    it nor the one-sided error sees a polish that lowers it by sending a stretch of curve
+    away from the data or folding it back on itself.  Then each least-squares fit in
+    ``fits`` (the swarm's seed, the classic chord-length fit), in turn, where it is closer
+    to the data (a lower mean, :func:`_lower_mean`, or a smaller worst gap,
     :func:`_smaller_gap`) and turns no more than that: the swarm minimises a mean, and
     with too few control points for the shape its curve can leave a larger gap than a
-    least-squares fit, or make a small loop.  Any of them also
-    replaces a curve that loops where the data do not, whatever its fitness, if it does
-    not and strays less (:func:`_untangles`): the fitness samples the curve a few times a
-    span, and a loop between its samples costs it nothing.
+    least-squares fit, or make a small loop.  Any of them also replaces a curve that loops
+    where the data do not, whatever its fitness, if it does not and strays less
+    (:func:`_untangles`): the fitness samples the curve a few times a span, and a loop
+    between its samples costs it nothing.
     """
     chosen = measure(best)
     if polished is not None:
