@@ -183,15 +183,29 @@ def outlines_path(data_dir=None) -> Path:
     raise FileNotFoundError(f"data_dir: no outlines/outlines.npz under {tried}")
 
 
-def read_outlines(data_dir=None) -> dict[str, dict[str, np.ndarray]]:
+#: How the benchmark outlines' points are spaced along their curves: evenly by arc length,
+#: or at sorted random arc-length positions (open curves keep both ends).
+SPACINGS = {"even": "points", "random": "points_random"}
+
+
+def read_outlines(data_dir=None, spacing: str = "even") -> dict[str, dict[str, np.ndarray]]:
     """The benchmark outlines by name: ``{"points": (200, 2), "truth": (5000, 2) dense
     samples of the exact curve (``None`` if the file has none), "closed": bool}`` (see
-    :func:`outlines_path`)."""
-    with np.load(outlines_path(data_dir)) as npz:
+    :func:`outlines_path`), the points spaced as ``spacing`` says (:data:`SPACINGS`)."""
+    if spacing not in SPACINGS:
+        raise ValueError(f"spacing must be one of {', '.join(SPACINGS)}, got {spacing!r}")
+    path = outlines_path(data_dir)
+    with np.load(path) as npz:
         names = sorted(k[: -len("_closed")] for k in npz.files if k.endswith("_closed"))
+        missing = [n for n in names if f"{n}_{SPACINGS[spacing]}" not in npz.files]
+        if missing:
+            raise ValueError(
+                f"spacing: {path} has no {spacing}-spaced points "
+                f"('{missing[0]}_{SPACINGS[spacing]}') for {', '.join(missing)}"
+            )
         return {
             name: {
-                "points": np.asarray(npz[f"{name}_points"], dtype=np.float64),
+                "points": np.asarray(npz[f"{name}_{SPACINGS[spacing]}"], dtype=np.float64),
                 "truth": (
                     np.asarray(npz[f"{name}_truth"], dtype=np.float64)
                     if f"{name}_truth" in npz.files

@@ -21,7 +21,7 @@ import pytest
 import yaml
 
 from swarmcurves_jax.config import ConfigError, check_config
-from swarmcurves_jax.datasets import random_bspline_points
+from swarmcurves_jax.datasets import random_bspline_points, read_outlines
 from swarmcurves_jax.export import read_solutions
 from swarmcurves_jax.run import main
 
@@ -201,6 +201,20 @@ def test_outline_datasets_load_from_data_dir(tmp_path, capsys):
     assert main([str(tmp_path / "job.yaml"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "no outline 'square'" in err and "have ring" in err
+
+
+def test_outlines_read_at_either_spacing_or_say_which_is_missing(tmp_path):
+    (tmp_path / "outlines").mkdir()
+    even, uneven = np.zeros((5, 2)), np.ones((5, 2))
+    arrays = dict(a_points=even, a_points_random=uneven, a_closed=np.array(False))
+    np.savez(tmp_path / "outlines" / "outlines.npz", **arrays, b_points=even, b_closed=True)
+    assert read_outlines(tmp_path)["b"]["points"].tolist() == even.tolist()
+    with pytest.raises(ValueError, match=r"no random-spaced points \('b_points_random'\) for b$"):
+        read_outlines(tmp_path, "random")
+    with pytest.raises(ValueError, match="spacing must be one of even, random, got 'odd'"):
+        read_outlines(tmp_path, "odd")
+    np.savez(tmp_path / "outlines" / "outlines.npz", **arrays)
+    assert read_outlines(tmp_path, "random")["a"]["points"].tolist() == uneven.tolist()
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
