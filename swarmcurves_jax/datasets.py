@@ -21,6 +21,7 @@ __all__ = [
     "butterfly_nurbs",
     "outlines_path",
     "read_outlines",
+    "SPACINGS",
     "builtin",
     "BUILTIN_NAMES",
 ]
