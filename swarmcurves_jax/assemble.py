@@ -50,10 +50,13 @@ def collect(run: Launched) -> list[FitResult]:
                 if polished is None
                 else Candidate(polished[0][b, i], float(polished[1][b, i]), "polish")
             )
-            fits = [] if seeds is None else _least_squares(seeds[b, i])
+            fits, polished_seed = [], None
+            if seeds is not None:
+                fits = _least_squares(seeds[b, i])
+                polished_seed = _polished_seed(polished, b, i)
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
-            chosen = select(best, other, on_data, data_turning, fits)
+            chosen = select(best, other, on_data, data_turning, fits, polished_seed)
             return make_curve(chosen, k, n, int(swarm[2][b, i]), prep)
 
         solutions = host_map(solution, range(len(pairs)))
@@ -77,6 +80,14 @@ def collect(run: Launched) -> list[FitResult]:
             )
         )
     return results
+
+
+def _polished_seed(polished, b: int, i: int) -> Candidate | None:
+    """The swarm's seed as the polish left it, where the polish reported another start."""
+    position = polished[2][b, i]
+    if np.array_equal(position, polished[0][b, i]):
+        return None
+    return Candidate(position, None, "polished seed")
 
 
 def _least_squares(rows: np.ndarray) -> list[Candidate]:
@@ -117,7 +128,7 @@ def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:
         info={
             "iterations": steps,
             "fitness": m.candidate.fitness,
-            "refined": m.candidate.source == "polish",
+            "refined": m.candidate.source in ("polish", "polished seed"),
             "source": m.candidate.source,
             "seed": prep.seed_value,
             "max_excursion": dev.max_excursion,

@@ -63,8 +63,8 @@ class Curve:
         Per-point distances (normalised frame), in the order of the fitted points.
     info : dict
         JSON-safe extras of the fit (iterations run, seed, swarm fitness, ``source``:
-        which candidate was kept, ``"swarm"``, ``"polish"``, or a least-squares fit,
-        ``"seed"`` or ``"classic"``, ...).
+        which candidate was kept, ``"swarm"``, ``"polish"``, ``"polished seed"`` (the seed
+        as the polish left it), or a least-squares fit, ``"seed"`` or ``"classic"``, ...).
     """
 
     degree: int

@@ -48,8 +48,10 @@ def polish_program(
     state, boxes, seeds, points, mask, shared, *, space, method, seeded, groups, mesh=None, batch=1
 ):
     """Polish every swarm of every curve from ``REFINE_STARTS`` starts; per swarm, the
-    result with the best hold-out score (:data:`swarmcurves_jax.refine.HOLDOUT_EVERY`)
-    and its fitness.  Padded points (``mask`` 0) have zero residuals."""
+    result with the best hold-out score (:data:`swarmcurves_jax.refine.HOLDOUT_EVERY`),
+    its fitness, and the last start's result, the polished seed where ``seeded`` (the
+    host weighs it too: the hold-out mean, which picks the first, does not see a gap).
+    Padded points (``mask`` 0) have zero residuals."""
 
     def one_curve(shared, state, boxes, seeds, points, mask):
         pairs, bases = shared
@@ -96,12 +98,13 @@ def polish_program(
             )
             xs, fs, scores = jax.vmap(lambda x0: polish(problem, x0))(starts)
             i = jnp.argmin(jnp.where(jnp.isnan(scores), jnp.inf, scores))
-            return xs[i], fs[i]
+            return xs[i], fs[i], xs[-1]
 
         return by_degree(one_swarm, groups, bases, pairs, state, boxes, seeds)
 
     per_curve = (state, boxes, seeds, points, mask)
-    best = (state.best_position, state.best_fitness)  # one curve's outputs are shaped alike
+    # one curve's outputs are shaped alike
+    best = (state.best_position, state.best_fitness, state.best_position)
     out_like = tuple(jax.ShapeDtypeStruct(a.shape[1:], a.dtype) for a in best)
     return over_curves(one_curve, per_curve, shared, mesh, batch, out_like)
 

@@ -213,11 +213,11 @@ def _measured(name, mean, turns, largest=5e-3, farthest=5e-3):
     return _Measured(Deviations(largest, mean, 0.0, 0.0, 0.0, turns), np.r_[0.0, farthest], name)
 
 
-def _select(polished=None, seed=None, turns=5.5, largest=5e-3, classic=None):
+def _select(polished=None, seed=None, turns=5.5, largest=5e-3, classic=None, polished_seed=None):
     """``select`` on stand-ins: the swarm's best has fitness 2e-3, mean deviation 2e-4,
     largest deviation ``largest``, largest data distance 5e-3, and turns ``turns`` rad,
-    for data whose polyline turns 6 rad; ``polished``: (fitness, measured), ``seed`` and
-    the ``classic`` least-squares fit: measured."""
+    for data whose polyline turns 6 rad; ``polished``: (fitness, measured), ``seed``, the
+    ``classic`` least-squares fit and the ``polished_seed``: measured."""
     best = Candidate(np.zeros(3), 2e-3, "swarm")
     measured = {id(best): _measured("best", 2e-4, turns, largest)}
     other = None
@@ -229,8 +229,12 @@ def _select(polished=None, seed=None, turns=5.5, largest=5e-3, classic=None):
         if m is not None:
             fits.append(Candidate(np.zeros(3), None, source))
             measured[id(fits[-1])] = m
+    extra = None
+    if polished_seed is not None:
+        extra = Candidate(np.zeros(3), None, "polished seed")
+        measured[id(extra)] = polished_seed
     pick = lambda c: measured[id(c)]  # noqa: E731
-    return select(best, other, pick, data_turning=6.0, fits=fits).name
+    return select(best, other, pick, data_turning=6.0, fits=fits, polished_seed=extra).name
 
 
 @pytest.mark.parametrize(
@@ -275,6 +279,35 @@ def test_the_seed_is_kept_where_it_is_closer_to_the_data(seed, kept):
     assert _select(polished, _measured("seed", 1.5e-4, 6.0, 6e-3, 6e-3)) == "polished"
 
 
+LOOPING = 6.0 + 0.5 * np.pi + 0.5  # more than a quarter turn beyond the data's 6 rad
+
+
+@pytest.mark.parametrize(
+    "polished_seed, kept",
+    [
+        ((1.9e-4, 6.0, 4e-3), "polished seed"),  # a hair lower mean, a narrower gap
+        ((1e-4, 6.0, 9e-3), "polished seed"),  # half the mean, a gap 1.8 times as wide
+        ((1e-4, 6.0, 1.1e-2), "best"),  # half the mean, a gap 2.2 times as wide
+        ((2.1e-4, 6.0, 3e-3), "best"),  # a narrower gap alone
+        ((1e-4, LOOPING, 4e-3), "best"),  # folds
+    ],
+)
+def test_the_polished_seed_is_weighed_as_a_polish_without_its_fitness(polished_seed, kept):
+    """The polish keeps the start with the lowest hold-out mean; the seed as the polish
+    left it is weighed after it by the polish's tests on the host (a lower mean, a lower
+    product of the two measures, turning as the data do), whatever the device's fitness,
+    which is another objective than the swarm's (the fold term, denser samples)."""
+    mean, turns, largest = polished_seed
+    measured = _measured("polished seed", mean, turns, largest, largest)
+    assert _select(polished_seed=measured) == kept
+    # against a polish that was kept: the polished seed must beat that one
+    polished = (1e-3, _measured("polished", 1.5e-4, 6.0))
+    assert _select(polished, polished_seed=_measured("polished seed", 1.6e-4, 6.0)) == "polished"
+    assert _select(polished, polished_seed=_measured("polished seed", 1.4e-4, 6.0)) == (
+        "polished seed"
+    )
+
+
 def test_the_classic_fit_is_weighed_after_the_seed():
     """The chord-length least-squares fit against whatever the seed left chosen, by the
     seed's rule: kept where it leaves a smaller gap both ways than the seed that replaced
@@ -283,9 +316,6 @@ def test_the_classic_fit_is_weighed_after_the_seed():
     assert _select(seed=seed, classic=_measured("classic", 1.8e-4, 6.0, 4e-3, 4e-3)) == "classic"
     assert _select(seed=seed, classic=_measured("classic", 1.8e-4, 6.0, 5e-3, 7e-3)) == "seed"
     assert _select(classic=_measured("classic", 1.8e-4, 6.0, 7e-3, 7e-3)) == "classic"
-
-
-LOOPING = 6.0 + 0.5 * np.pi + 0.5  # more than a quarter turn beyond the data's 6 rad
 
 
 @pytest.mark.parametrize(
