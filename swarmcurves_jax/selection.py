@@ -5,8 +5,8 @@ Every swarm has up to five candidates: its best position, its polished one
 fits, its seed and the classic chord-length fit (:mod:`swarmcurves_jax.seeds`).
 :func:`measure` measures each by true projection both ways
 (:mod:`swarmcurves_jax.projection`, :mod:`swarmcurves_jax.measures`) in float64 on the
-host; :func:`select` keeps the one that stays closest to the data
-without looping where the data do not.
+host; :func:`select` keeps the one that stays closest to the data without looping where
+the data do not.
 """
 
 from __future__ import annotations
@@ -75,16 +75,15 @@ def select(
     away from the data or folding it back on itself.  Then the ``polished_seed`` by the
     same tests but the fitness (the polish keeps the start with the lowest hold-out mean,
     which does not see a gap: at complex_path0's 10 control points the polished seed's
-    mean is the same within 0.03 % and its largest deviation 0.257 against 0.308).  Then each
-    least-squares fit in
-    ``fits`` (the swarm's seed, the classic chord-length fit), in turn, where it is closer
-    to the data (a lower mean, :func:`_lower_mean`, or a smaller worst gap,
-    :func:`_smaller_gap`) and turns no more than that: the swarm minimises a mean, and
-    with too few control points for the shape its curve can leave a larger gap than a
-    least-squares fit, or make a small loop.  Any of them also replaces a curve that loops
-    where the data do not, whatever its fitness, if it does not and strays less
-    (:func:`_untangles`): the fitness samples the curve a few times a span, and a loop
-    between its samples costs it nothing.
+    mean is the same within 0.03 % and its largest deviation 0.257 against 0.308).
+    Then each least-squares fit in ``fits`` (the swarm's seed, the classic chord-length
+    fit), in turn, where it is closer to the data (a lower mean, :func:`_lower_mean`, or a
+    smaller worst gap, :func:`_smaller_gap`) and turns no more than that: the swarm
+    minimises a mean, and with too few control points for the shape its curve can leave a
+    larger gap than a least-squares fit, or make a small loop.  Any of them also replaces
+    a curve that loops where the data do not, whatever its fitness, if it does not and
+    strays less (:func:`_untangles`): the fitness samples the curve a few times a span,
+    and a loop between its samples costs it nothing.
     """
     chosen = measure(best)
     if polished is not None:
