@@ -90,13 +90,11 @@ def select(
         lower = polished.fitness < best.fitness
         if lower or _loops(chosen, data_turning):
             other = measure(polished)
-            closer = lower and _lower_mean(other, chosen) and _closer_together(other, chosen)
-            if _replaces(other, chosen, closer, data_turning):
+            if _replaces(other, chosen, lower and _polished_closer(other, chosen), data_turning):
                 chosen = other
     if polished_seed is not None:
         other = measure(polished_seed)
-        closer = _lower_mean(other, chosen) and _closer_together(other, chosen)
-        if _replaces(other, chosen, closer, data_turning):
+        if _replaces(other, chosen, _polished_closer(other, chosen), data_turning):
             chosen = other
     for fit in fits:
         other = measure(fit)
@@ -117,6 +115,13 @@ def _replaces(other: Measured, chosen: Measured, closer: bool, data_turning: flo
 def _lower_mean(other: Measured, chosen: Measured) -> bool:
     """Whether ``other``'s two-sided mean deviation is the lower."""
     return other.deviation.mean_deviation < _or_inf(chosen.deviation.mean_deviation)
+
+
+def _polished_closer(other: Measured, chosen: Measured) -> bool:
+    """Whether a polished curve is closer to the data than ``chosen``: a lower
+    ``mean_deviation`` (what the polish lowers) and no gap widened by more than that
+    (:func:`_closer_together`)."""
+    return _lower_mean(other, chosen) and _closer_together(other, chosen)
 
 
 def _closer_together(other: Measured, chosen: Measured) -> bool:
