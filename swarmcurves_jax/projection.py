@@ -133,6 +133,30 @@ def distance_to_polyline(points: np.ndarray, vertices: np.ndarray) -> np.ndarray
     return np.sqrt(_nearest_chords(points, vertices, top=1, near=4)[1][:, 0])
 
 
+def _newton(u, lo, hi, span, points, curve):
+    """Projected Newton on ``|C(u) - p|^2`` inside ``[lo, hi]``, until no parameter moves
+    by more than 1e-15 (at most ``_NEWTON_STEPS``).  Each parameter's step depends on its
+    own row alone, so a parameter that did not move at all is at its fixed point and
+    leaves the loop: the numbers of stepping every parameter every time (to the rounding
+    of the matrix products, whose blocking follows the row count), for a fraction of the
+    evaluations (100,000 points near a cubic: 891,000 rows instead of 3,000,000)."""
+    u = u.copy()
+    at = np.arange(len(u))
+    for _ in range(_NEWTON_STEPS):
+        now = u[at]
+        c0, c1, c2 = curve_derivatives(now, *curve, span=span[at])
+        r = c0 - points[at]
+        g = np.sum(c1 * r, axis=1)
+        h = np.sum(c1 * c1, axis=1) + np.sum(c2 * r, axis=1)
+        step = np.where(h > 0, -g / np.where(h > 0, h, 1.0), np.where(g > 0, -np.inf, np.inf))
+        new = np.clip(now + step, lo[at], hi[at])
+        u[at] = new
+        if np.all(np.abs(new - now) <= 1e-15):
+            break
+        at = at[new != now]
+    return u
+
+
 def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
     """Distance from every point to the curve, and the foot-point parameter.
 
@@ -170,22 +194,13 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
     # Every interval lies in one span: Newton runs on that span's polynomial, also at the
     # interval's right end, a knot, where find_span would give the next span (at a
     # polygon's corner its derivative sent Newton back and forth for all its steps).
-    span = find_span(lo, t, k)
-    for _ in range(_NEWTON_STEPS):
-        c0, c1, c2 = curve_derivatives(u, ctrl, weights, t, k, closed, span=span)
-        r = c0 - p
-        g = np.sum(c1 * r, axis=1)
-        h = np.sum(c1 * c1, axis=1) + np.sum(c2 * r, axis=1)
-        step = np.where(h > 0, -g / np.where(h > 0, h, 1.0), np.where(g > 0, -np.inf, np.inf))
-        u_new = np.clip(u + step, lo, hi)
-        if np.all(np.abs(u_new - u) <= 1e-15):
-            u = u_new
-            break
-        u = u_new
+    u = _newton(u, lo, hi, find_span(lo, t, k), p, (ctrl, weights, t, k, closed))
+    # The foot is Newton's point or an interval's end, whichever is nearest; the ends are
+    # the dense samples themselves (the same evaluation, at the grid)
+    newton = curve_derivatives(u, ctrl, weights, t, k, closed, max_nu=0)[0]
+    c = np.stack([newton, samples[cand.ravel()], samples[cand.ravel() + 1]], axis=1)
+    d = np.linalg.norm(c - p[:, None, :], axis=2).reshape(len(points), -1)
     cands = np.stack([u, lo, hi], axis=1)
-    pts = np.repeat(p, 3, axis=0)
-    c = curve_derivatives(cands.ravel(), ctrl, weights, t, k, closed, max_nu=0)[0]
-    d = np.linalg.norm(c - pts, axis=1).reshape(len(points), -1)
     best = np.argmin(d, axis=1)
     return d[np.arange(len(points)), best], cands.reshape(len(points), -1)[
         np.arange(len(points)), best
