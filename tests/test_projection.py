@@ -113,6 +113,21 @@ def test_distance_to_polyline_past_crowded_vertices():
     assert _segment_distances(np.array([[0.0, 0.1]]), vertices)[0, 1:].min() > 0.19
 
 
+def test_distance_to_polyline_within_a_long_chords_reach_is_every_chords_least():
+    """A dense polyline (3,000 vertices 1e-3 apart) with one chord 40 long: every vertex
+    lies within the reach of a point 0.5 away (its nearest chord's distance plus half the
+    longest chord), so the tree hands back about 1.2 million (point, vertex) pairs, read in
+    parts; the distances are the least over every chord, bit for bit."""
+    s = np.arange(3000) * 1e-3
+    vertices = np.r_[np.c_[s, 0.1 * np.sin(4 * s)], [[3.0, 40.0]]]
+    rng = np.random.default_rng(11)
+    pts = vertices[rng.integers(0, 3000, 400)] + rng.normal(0, 0.5, (400, 2))
+    a, ab = vertices[:-1], np.diff(vertices, axis=0)
+    inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
+    every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
+    np.testing.assert_array_equal(distance_to_polyline(pts, vertices), np.sqrt(every.min(1)))
+
+
 def _assert_top_chords(pts, samples):
     got, got_d2 = _nearest_chords(pts, samples)
     a, ab = samples[:-1], np.diff(samples, axis=0)
