@@ -142,7 +142,7 @@ def distance_to_polyline(points: np.ndarray, vertices: np.ndarray) -> np.ndarray
     chords = (a, ab, 1.0 / np.maximum(len2, 1e-300))
     tree = cKDTree(vertices, balanced_tree=False, compact_nodes=False)
     near = min(4, len(vertices))
-    dist, vert = (x.reshape(len(points), -1) for x in tree.query(points, k=near))
+    dist, vert = (x.reshape(len(points), near) for x in tree.query(points, k=near))
     d2 = _chord_d2(points, *chords, np.clip(np.c_[vert - 1, vert], 0, len(a) - 1)).min(1)
     reach = np.sqrt(d2) + 0.5 * np.sqrt(np.max(len2))
     unsure = np.flatnonzero((dist[:, -1] <= reach) & (near < len(vertices)))

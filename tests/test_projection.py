@@ -126,6 +126,7 @@ def test_distance_to_polyline_within_a_long_chords_reach_is_every_chords_least()
     inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
     every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
     np.testing.assert_array_equal(distance_to_polyline(pts, vertices), np.sqrt(every.min(1)))
+    assert distance_to_polyline(np.zeros((0, 2)), vertices).shape == (0,)
 
 
 def _assert_top_chords(pts, samples):
