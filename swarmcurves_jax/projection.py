@@ -84,92 +84,85 @@ def _nearest_chords(points, samples, top=3, near=16):
 
     A chord within ``r`` of a point has an end within ``r + L/2`` (``L``: the longest
     chord), so the chords at the ``near`` nearest samples (a k-d tree) hold the answer
-    whenever the farthest of those samples lies beyond that; the rare other points ask
-    again for 8 times as many samples, up to every sample (every chord).  Exact either
-    way, and about 10x quicker than searching every chord for every point (measured on
-    W1's solutions; asking again rather than searching every chord at once: W1's 21
-    projections 0.157 -> 0.13 s serial; 16 samples at first rather than 32, and an
-    unbalanced tree: 115 -> 98 ms, the same chords).  scipy's tree, not pykdtree's (the
-    seeds'): pykdtree's 16-neighbour queries were 5 % quicker on idle cores but 4x slower
-    with both cores busy elsewhere (its OpenMP query waits for its descheduled threads).
+    whenever the farthest of those samples lies beyond that, with ``r`` the ``top``-th
+    nearest chord's distance among them.  A point they leave unsure asks the tree for every
+    sample within that reach and ranks the chords there (:func:`_rank_chords_at`).  Exact
+    either way, and about 10x quicker than searching every chord for every point (measured
+    on W1's solutions; 16 samples at first rather than 32, and an unbalanced tree: 115 ->
+    98 ms, the same chords).  Asking unsure points again for 8 times as many samples, until
+    sure, took 2.6 s against 0.74 s for the curve -> data distances of a curve's 98,000
+    samples to a 20,000-point polyline.  scipy's tree, not pykdtree's (the seeds'):
+    pykdtree's 16-neighbour queries were 5 % quicker on idle cores but 4x slower with both
+    cores busy elsewhere (its OpenMP query waits for its descheduled threads).
     """
-    a, b = samples[:-1], samples[1:]
-    ab = b - a
+    a = samples[:-1]
+    ab = samples[1:] - a
     len2 = np.sum(ab**2, axis=1)
-    inv = 1.0 / np.maximum(len2, 1e-300)
+    chords = (a, ab, 1.0 / np.maximum(len2, 1e-300))
     out = np.empty((len(points), top), dtype=np.int64)
     out_d2 = np.empty((len(points), top))
     tree = cKDTree(samples, balanced_tree=False, compact_nodes=False)
     half = 0.5 * np.sqrt(np.max(len2))
-    rows = np.arange(len(points))
-    while len(rows):
-        near = min(near, len(samples))
-        unsure = []
-        chunk = max(1, 8192 * 32 // near)  # bounded temporaries for huge scans
-        for lo in range(0, len(rows), chunk):
-            at = rows[lo : lo + chunk]
-            p = points[at]
-            dist, vert = (x.reshape(len(p), -1) for x in tree.query(p, k=near))
-            cand = np.sort(np.clip(np.concatenate([vert - 1, vert], axis=1), 0, len(a) - 1), axis=1)
-            d2 = _chord_d2(p, a, ab, inv, cand)
-            d2[:, 1:][cand[:, 1:] == cand[:, :-1]] = np.inf  # each chord once
-            pick = np.argpartition(d2, top - 1, axis=1)[:, :top]
-            within = np.arange(len(p))[:, None]
-            out[at], out_d2[at] = cand[within, pick], d2[within, pick]
-            if near < len(samples):
-                reach = np.sqrt(out_d2[at].max(axis=1)) + half
-                unsure.append(at[dist[:, -1] <= reach])
-        rows = np.concatenate(unsure) if unsure else rows[:0]
-        near *= 8
+    near = min(near, len(samples))
+    chunk = max(1, 8192 * 32 // near)  # bounded temporaries for huge scans
+    unsure = [np.arange(0)]
+    for lo in range(0, len(points), chunk):
+        at = np.arange(lo, min(lo + chunk, len(points)))
+        dist, vert = (x.reshape(len(at), near) for x in tree.query(points[at], k=near))
+        cand = np.sort(np.clip(np.c_[vert - 1, vert], 0, len(a) - 1), axis=1)
+        d2 = _chord_d2(points[at], *chords, cand)
+        d2[:, 1:][cand[:, 1:] == cand[:, :-1]] = np.inf  # each chord once
+        pick = np.argpartition(d2, top - 1, axis=1)[:, :top]
+        within = np.arange(len(at))[:, None]
+        out[at], out_d2[at] = cand[within, pick], d2[within, pick]
+        if near < len(samples):
+            unsure.append(at[dist[:, -1] <= np.sqrt(out_d2[at].max(axis=1)) + half])
+    unsure = np.concatenate(unsure)
+    reach = np.sqrt(out_d2[unsure].max(axis=1)) + half
+    # about 2**14 samples a query (a long chord's reach can hold them all; measured: 2**14,
+    # 2**16 and 2**19 took 0.66-0.77, 0.76-0.80 and 0.97-1.02 s on the polyline above)
+    counts = np.cumsum(tree.query_ball_point(points[unsure], reach, return_length=True))
+    cuts = np.searchsorted(counts, np.arange(1 << 14, counts[-1] if len(counts) else 0, 1 << 14))
+    for rows, within in zip(np.split(unsure, cuts), np.split(reach, cuts)):
+        if len(rows):  # (a row past 2**14 samples makes an empty part)
+            found = tree.query_ball_point(points[rows], within, return_sorted=True)
+            out[rows], out_d2[rows] = _rank_chords_at(points, rows, found, chords, top)
+    return out, out_d2
+
+
+def _rank_chords_at(points, rows, found, chords, top):
+    """The ``top`` chords nearest to each of the points ``rows`` among the
+    chords at the samples ``found`` for it (sorted index lists: a sample's chord to the
+    next, and the chord before each run of consecutive samples, each chord once), and
+    their squared distances, nearest first."""
+    counts = np.fromiter(map(len, found), np.int64, len(found))
+    ends = np.fromiter(itertools.chain.from_iterable(found), np.int64, counts.sum())
+    run = np.r_[True, np.diff(ends) != 1]
+    run[np.cumsum(counts)[:-1]] = True  # a row's first sample starts a run
+    own, before = ends < len(chords[0]), run & (ends > 0)
+    row = np.repeat(np.arange(len(rows)), counts)
+    row, index = np.r_[row[own], row[before]], np.r_[ends[own], ends[before] - 1]
+    d2 = _chord_d2(points[rows[row]], *chords, index[:, None])[:, 0]
+    out, out_d2 = np.zeros((len(rows), top), np.int64), np.full((len(rows), top), np.inf)
+    for j in range(top):  # the nearest left, then the next: a pass each, no sort
+        np.minimum.at(out_d2[:, j], row, d2)
+        hit = np.flatnonzero(d2 == out_d2[row, j])
+        first = np.full(len(rows), len(d2))
+        np.minimum.at(first, row[hit], hit)  # each row's first chord at its least
+        out[:, j] = index[first]
+        d2[first] = np.inf
     return out, out_d2
 
 
 def distance_to_polyline(points: np.ndarray, vertices: np.ndarray) -> np.ndarray:
     """Exact distance (N,) from every point (N, D) to the polyline through ``vertices``
-    (M, D; one vertex: the distance to it): the curve -> data side of the two-sided
-    measures.  The chords at each point's 4 nearest vertices (a k-d tree) settle most
-    points near a densely sampled curve (measured on 10,000 samples: 18-23 ms, against
-    59-61 ms from 16).  A point they leave unsure asks the tree for every vertex within
-    the nearest chord's distance found plus half the longest chord: a nearer chord has
-    an end there (asking for 8 times as many nearest vertices instead, until sure, took
-    2.6 s against 0.74 s for a curve's 98,000 samples and a 20,000-point polyline; the
-    same distances: the same formula, the same chord)."""
+    (M, D; one vertex: the distance to it), by :func:`_nearest_chords`: the curve -> data
+    side of the two-sided measures.  It starts from the 4 nearest vertices: enough for a
+    point near a densely sampled curve (measured on 10,000 samples: 18-23 ms, against
+    59-61 ms from 16)."""
     if len(vertices) < 2:
         return np.linalg.norm(points - vertices[:1], axis=1)
-    a = vertices[:-1]
-    ab = vertices[1:] - a
-    len2 = np.sum(ab**2, axis=1)
-    chords = (a, ab, 1.0 / np.maximum(len2, 1e-300))
-    tree = cKDTree(vertices, balanced_tree=False, compact_nodes=False)
-    near = min(4, len(vertices))
-    dist, vert = (x.reshape(len(points), near) for x in tree.query(points, k=near))
-    d2 = _chord_d2(points, *chords, np.clip(np.c_[vert - 1, vert], 0, len(a) - 1)).min(1)
-    reach = np.sqrt(d2) + 0.5 * np.sqrt(np.max(len2))
-    unsure = np.flatnonzero((dist[:, -1] <= reach) & (near < len(vertices)))
-    # about 2**14 vertices a query (a long chord's reach can hold them all; measured: 2**14,
-    # 2**16 and 2**19 took 0.66-0.77, 0.76-0.80 and 0.97-1.02 s on the samples above)
-    counts = np.cumsum(tree.query_ball_point(points[unsure], reach[unsure], return_length=True))
-    cuts = np.searchsorted(counts, np.arange(1 << 14, counts[-1] if len(counts) else 0, 1 << 14))
-    for rows in np.split(unsure, cuts):
-        found = tree.query_ball_point(points[rows], reach[rows], return_sorted=True)
-        _lower_to_chords_at(d2, points, rows, found, chords)
-    return np.sqrt(d2)
-
-
-def _lower_to_chords_at(d2, points, rows, found, chords) -> None:
-    """Lower each row's squared distance ``d2[rows]`` to its least to the chords at the
-    vertices ``found`` for it (sorted index lists): a vertex's chord to the next, and the
-    chord before each run of consecutive vertices, each chord once."""
-    counts = np.fromiter(map(len, found), np.int64, len(found))
-    ends = np.fromiter(itertools.chain.from_iterable(found), np.int64, counts.sum())
-    if not len(ends):
-        return
-    run = np.r_[True, np.diff(ends) != 1]
-    run[np.cumsum(counts)[:-1]] = True  # a row's first vertex starts a run
-    index = np.clip(np.r_[ends, ends[run] - 1], 0, len(chords[0]) - 1)
-    at = np.repeat(rows, counts)
-    at = np.r_[at, at[run]]
-    np.minimum.at(d2, at, _chord_d2(points[at], *chords, index[:, None])[:, 0])
+    return np.sqrt(_nearest_chords(points, vertices, top=1, near=4)[1][:, 0])
 
 
 def _newton(u, lo, hi, span, points, curve):
