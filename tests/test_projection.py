@@ -8,7 +8,7 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 
-from swarmcurves_jax import make_knots
+from swarmcurves_jax import make_knots, projection
 from swarmcurves_jax.projection import (
     _chord_d2,
     _dense_design,
@@ -127,6 +127,35 @@ def test_distance_to_polyline_within_a_long_chords_reach_is_every_chords_least()
     every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
     np.testing.assert_array_equal(distance_to_polyline(pts, vertices), np.sqrt(every.min(1)))
     assert distance_to_polyline(np.zeros((0, 2)), vertices).shape == (0,)
+
+
+def test_points_far_from_an_unevenly_spaced_polyline_are_settled_by_their_nearest_vertices(
+    monkeypatch,
+):
+    """A curve far from dense data (its distance many times the data's spacing), the
+    data's chords up to 5 times apart from each other in length (f4's, measured): the
+    nearest vertices settle nearly every point (a chord whose ends both lie beyond ``R``
+    is at least ``sqrt(R^2 - L^2/4)`` away), so few ask the tree for a ball, and every
+    distance is the least over every chord, bit for bit."""
+    u = np.r_[np.linspace(0.0, 0.5, 2000), np.linspace(0.5, 1.0, 401)[1:]]
+    vertices = np.c_[u, 0.2 * np.sin(6 * u)]  # chords 1e-4 to 1e-3 long
+    rng = np.random.default_rng(5)
+    pts = vertices[rng.integers(0, len(vertices), 3000)] + rng.normal(0, 0.05, (3000, 2))
+    asked = []
+
+    class Counting(projection.cKDTree):
+        def query_ball_point(self, x, r, return_length=False, **kwargs):
+            if return_length:  # once for every unsure point
+                asked.append(len(x))
+            return super().query_ball_point(x, r, return_length=return_length, **kwargs)
+
+    monkeypatch.setattr(projection, "cKDTree", Counting)
+    got = distance_to_polyline(pts, vertices)
+    a, ab = vertices[:-1], np.diff(vertices, axis=0)
+    inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
+    every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
+    np.testing.assert_array_equal(got, np.sqrt(every.min(1)))
+    assert sum(asked) < 0.05 * len(pts)  # by r + L/2 instead: 2,936 of the 3,000
 
 
 def _assert_top_chords(pts, samples):
