@@ -73,9 +73,9 @@ def _dense_design(knots: bytes, k: int, closed: bool, per_span: int):
 
 def _chord_d2(points, a, ab, inv, idx):
     """Squared distances from each point to chords ``idx`` (N, C) of ``a + s ab``."""
-    ap = points[:, None, :] - a[idx]
-    s = np.clip(np.einsum("ncd,ncd->nc", ap, ab[idx]) * inv[idx], 0.0, 1.0)
-    return np.sum((ap - s[..., None] * ab[idx]) ** 2, axis=2)
+    ap, ab = points[:, None, :] - a[idx], ab[idx]
+    s = np.clip(np.einsum("ncd,ncd->nc", ap, ab) * inv[idx], 0.0, 1.0)
+    return np.sum((ap - s[..., None] * ab) ** 2, axis=2)
 
 
 def _nearest_chords(points, samples, top=3):
