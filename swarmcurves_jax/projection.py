@@ -233,22 +233,64 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
     design_of = _dense_design if len(ctrl) <= 32 else _dense_design.__wrapped__
     grid, design = design_of(t.tobytes(), k, closed, per_span)
     samples = _rational([design], ctrl, weights)[0]
-    cand = _nearest_chords(points, samples)[0]  # intervals [grid[i], grid[i+1]]
+    cand, cand_d2 = _nearest_chords(points, samples)  # intervals [grid[i], grid[i+1]]
+    curve = (ctrl, weights, t, k, closed)
+    # the gaps cost two evaluations at every interval's ends: worth it for many points
+    gaps = _arc_gaps(grid, *curve) if len(points) >= len(grid) else None
+    if gaps is None:
+        return _nearest_in(points, cand, grid, samples, curve)
+    # Newton in the nearest chord's interval first; another ranked interval holds no
+    # nearer point than its chord's distance less its arc's gap from the chord
+    order = np.argsort(cand_d2, axis=1, kind="stable")
+    cand, cand_d2 = (np.take_along_axis(a, order, axis=1) for a in (cand, cand_d2))
+    dist, foot = _nearest_in(points, cand[:, :1], grid, samples, curve)
+    chord = np.sqrt(cand_d2[:, 1:])
+    near = chord - gaps[cand[:, 1:]] <= dist[:, None] + 1e-9 * (dist[:, None] + chord)
+    rows, cols = np.nonzero(near)
+    d, u = _nearest_in(points[rows], cand[rows, cols + 1][:, None], grid, samples, curve)
+    for col in range(near.shape[1]):  # in rank order, a tie keeping the earlier
+        at = np.flatnonzero(cols == col)
+        at = at[d[at] < dist[rows[at]]]
+        dist[rows[at]], foot[rows[at]] = d[at], u[at]
+    return dist, foot
+
+
+def _nearest_in(points, cand, grid, samples, curve):
+    """Each point's nearest point of the curve in its intervals ``[grid[i], grid[i+1]]``,
+    ``i`` in ``cand`` (N, C): its distance and parameter, over Newton's point and each
+    interval's ends (the ``samples`` at the grid)."""
     lo, hi = grid[cand], grid[cand + 1]
     p = np.repeat(points[:, None, :], cand.shape[1], axis=1).reshape(-1, points.shape[1])
     lo, hi = lo.ravel(), hi.ravel()
     u = 0.5 * (lo + hi)
+    ctrl, weights, t, k, closed = curve
     # Every interval lies in one span: Newton runs on that span's polynomial, also at the
     # interval's right end, a knot, where find_span would give the next span (at a
     # polygon's corner its derivative sent Newton back and forth for all its steps).
-    u = _newton(u, lo, hi, find_span(lo, t, k), p, (ctrl, weights, t, k, closed))
+    u = _newton(u, lo, hi, find_span(lo, t, k), p, curve)
     # The foot is Newton's point or an interval's end, whichever is nearest; the ends are
     # the dense samples themselves (the same evaluation, at the grid)
     newton = curve_derivatives(u, ctrl, weights, t, k, closed, max_nu=0)[0]
     c = np.stack([newton, samples[cand.ravel()], samples[cand.ravel() + 1]], axis=1)
-    d = np.linalg.norm(c - p[:, None, :], axis=2).reshape(len(points), -1)
-    cands = np.stack([u, lo, hi], axis=1)
+    width = 3 * cand.shape[1]
+    d = np.linalg.norm(c - p[:, None, :], axis=2).reshape(len(points), width)
+    cands = np.stack([u, lo, hi], axis=1).reshape(len(points), width)
     best = np.argmin(d, axis=1)
-    return d[np.arange(len(points)), best], cands.reshape(len(points), -1)[
-        np.arange(len(points)), best
-    ]
+    rows = np.arange(len(points))
+    return d[rows, best], cands[rows, best]
+
+
+def _arc_gaps(grid, ctrl, weights, t, k, closed):
+    """How far the curve can stray from the chord of each interval ``[grid[i],
+    grid[i+1]]`` (one span's polynomial): ``(hi - lo)^2 / 8`` times the largest
+    ``|C''|`` there, which for a polynomial of degree 3 or less (``C''`` linear) is at an
+    end; None for a rational curve or a higher degree.  Measured on a warm ``fit`` of f4
+    at 100,000 points, its host work run serially: Newton 9.8 -> 4.5 s, the call 25.5 ->
+    16.4 s (the same curves, their errors bit for bit)."""
+    if k > 3 or np.any(np.asarray(weights) != weights[0]):
+        return None
+    lo, hi = grid[:-1], grid[1:]
+    span = find_span(lo, t, k)
+    ends = [curve_derivatives(u, ctrl, weights, t, k, closed, span=span)[2] for u in (lo, hi)]
+    bend = np.maximum(*(np.linalg.norm(c2, axis=1) for c2 in ends))
+    return (hi - lo) ** 2 / 8.0 * bend

@@ -276,3 +276,48 @@ def test_each_point_projects_as_if_alone_and_settled_points_leave_newton(monkeyp
         alone = project_points(pts[i : i + 1], ctrl, w, t, 3, True)
         np.testing.assert_allclose(alone[0], dist[i], rtol=1e-13, atol=1e-15)
         np.testing.assert_allclose(alone[1], foot[i], rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize("k, closed", [(2, True), (3, False), (3, True)])
+def test_many_points_search_the_other_intervals_only_where_their_chord_could_come_nearer(
+    k, closed, monkeypatch
+):
+    """With at least as many points as dense samples, Newton runs first in the interval of
+    each point's nearest chord, then in its next two only where that chord, less how far
+    the arc can stray from it (``|C''| (hi - lo)^2 / 8``), could come nearer: the same
+    distances and feet as searching all three, for under half of Newton's starts."""
+    rng = np.random.default_rng(k + 2 * closed)
+    ctrl, w, t = rng.uniform(-1, 1, (9, 2)), np.ones(9), make_knots(9, k, closed)
+    u = rng.uniform(0, 1, 6000)
+    pts = curve_derivatives(u, ctrl, w, t, k, closed, max_nu=0)[0] + rng.normal(0, 0.02, (6000, 2))
+    rows = []
+    plain = projection._newton
+
+    def counted(u, *args):
+        rows.append(len(u))
+        return plain(u, *args)
+
+    monkeypatch.setattr(projection, "_newton", counted)
+    dist, foot = project_points(pts, ctrl, w, t, k, closed)
+    ruled_out = sum(rows)
+    monkeypatch.setattr(projection, "_arc_gaps", lambda *args: None)  # all three searched
+    want = project_points(pts, ctrl, w, t, k, closed)
+    np.testing.assert_allclose(dist, want[0], rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(foot, want[1], rtol=0, atol=1e-12)
+    # measured: 6,000 + 1,409 to 1,750 rows start Newton, against 18,000
+    assert sum(rows) - ruled_out == 3 * 6000 and ruled_out < 0.5 * 3 * 6000
+
+
+def test_points_whose_other_chords_are_all_ruled_out_search_no_more():
+    """Points over the middles of a polygon's sides: every other side is farther than the
+    nearest, so the second search is empty (it runs on no rows), and each distance is the
+    offset."""
+    ctrl = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 1.0], [3.0, 1.0]])
+    t = make_knots(4, 1, False)
+    mids = 0.5 * (ctrl[1:] + ctrl[:-1])
+    normal = np.diff(ctrl, axis=0)[:, ::-1] * [1.0, -1.0]
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    offsets = np.array([0.01, 0.02, 0.05])
+    pts = (mids[:, None, :] + offsets[None, :, None] * normal[:, None, :]).reshape(-1, 2)
+    dist, _ = project_points(pts, ctrl, np.ones(4), t, 1, False)
+    np.testing.assert_allclose(dist, np.tile(offsets, 3), rtol=1e-12)
