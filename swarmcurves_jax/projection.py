@@ -80,7 +80,7 @@ def _chord_d2(points, a, ab, inv, idx):
 
 def _nearest_chords(points, samples, top=3):
     """Indices of the ``top`` chords ``[samples[i], samples[i+1]]`` nearest to each point,
-    (N, top), and each one's squared distance to it, (N, top).
+    (N, top), nearest first, and each one's squared distance to it, (N, top).
 
     A chord whose two ends lie at least ``R`` from a point is at least
     ``sqrt(R^2 - L^2/4)`` from it (``L``: the longest chord), and a chord within ``r`` has
@@ -116,6 +116,8 @@ def _nearest_chords(points, samples, top=3):
         d2 = _chord_d2(points[at], *chords, cand)
         d2[:, 1:][cand[:, 1:] == cand[:, :-1]] = np.inf  # each chord once
         pick = np.argpartition(d2, top - 1, axis=1)[:, :top]
+        rank = np.argsort(np.take_along_axis(d2, pick, axis=1), axis=1, kind="stable")
+        pick = np.take_along_axis(pick, rank, axis=1)  # nearest first
         within = np.arange(len(at))[:, None]
         out[at], out_d2[at] = cand[within, pick], d2[within, pick]
         if near < len(samples):
@@ -241,8 +243,6 @@ def project_points(points, ctrl, weights, t, k, closed, *, min_samples=4096):
         return _nearest_in(points, cand, grid, samples, curve)
     # Newton in the nearest chord's interval first; another ranked interval holds no
     # nearer point than its chord's distance less its arc's gap from the chord
-    order = np.argsort(cand_d2, axis=1, kind="stable")
-    cand, cand_d2 = (np.take_along_axis(a, order, axis=1) for a in (cand, cand_d2))
     dist, foot = _nearest_in(points, cand[:, :1], grid, samples, curve)
     chord = np.sqrt(cand_d2[:, 1:])
     near = chord - gaps[cand[:, 1:]] <= dist[:, None] + 1e-9 * (dist[:, None] + chord)

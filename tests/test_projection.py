@@ -122,9 +122,7 @@ def test_distance_to_polyline_within_a_long_chords_reach_is_every_chords_least()
     vertices = np.r_[np.c_[s, 0.1 * np.sin(4 * s)], [[3.0, 40.0]]]
     rng = np.random.default_rng(11)
     pts = vertices[rng.integers(0, 3000, 400)] + rng.normal(0, 0.5, (400, 2))
-    a, ab = vertices[:-1], np.diff(vertices, axis=0)
-    inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
-    every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
+    every = _every_chord_d2(pts, vertices)
     np.testing.assert_array_equal(distance_to_polyline(pts, vertices), np.sqrt(every.min(1)))
     assert distance_to_polyline(np.zeros((0, 2)), vertices).shape == (0,)
 
@@ -151,18 +149,23 @@ def test_points_far_from_an_unevenly_spaced_polyline_are_settled_by_their_neares
 
     monkeypatch.setattr(projection, "cKDTree", Counting)
     got = distance_to_polyline(pts, vertices)
-    a, ab = vertices[:-1], np.diff(vertices, axis=0)
-    inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
-    every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
+    every = _every_chord_d2(pts, vertices)
     np.testing.assert_array_equal(got, np.sqrt(every.min(1)))
     assert sum(asked) < 0.05 * len(pts)  # by r + L/2 instead: 2,936 of the 3,000
 
 
+def _every_chord_d2(pts, vertices):
+    """Each point's squared distance to every chord of the polyline (N, M - 1), by the
+    search's own formula (so that its least is the search's answer bit for bit)."""
+    a, ab = vertices[:-1], np.diff(vertices, axis=0)
+    inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
+    return _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
+
+
 def _assert_top_chords(pts, samples):
     got, got_d2 = _nearest_chords(pts, samples)
-    a, ab = samples[:-1], np.diff(samples, axis=0)
-    inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
-    every = _chord_d2(pts, a, ab, inv, np.broadcast_to(np.arange(len(a)), (len(pts), len(a))))
+    every = _every_chord_d2(pts, samples)
+    assert np.all(np.diff(got_d2, axis=1) >= 0)  # nearest first
     picked = np.sort(np.take_along_axis(every, got, axis=1), axis=1)
     np.testing.assert_array_equal(picked, np.sort(every, axis=1)[:, :3])
     np.testing.assert_allclose(np.sort(got_d2, axis=1), picked, rtol=1e-15)
@@ -253,8 +256,6 @@ def test_each_point_projects_as_if_alone_and_settled_points_leave_newton(monkeyp
     row alone, so it would not move again): every point's distance and foot are the ones
     it gets projected alone, to the rounding of the matrix products, and the loop
     evaluates fewer rows than every parameter at every step."""
-    import swarmcurves_jax.projection as projection
-
     rng = np.random.default_rng(3)
     ctrl, w, t = rng.uniform(-1, 1, (8, 2)), rng.uniform(0.5, 2.0, 8), make_knots(8, 3, True)
     u = np.sort(rng.uniform(0, 1, 2000))
