@@ -16,9 +16,8 @@ import numpy as np
 from .curves import Curve
 from .devices import host_map
 from .launch import Launched
-from .measures import turning
 from .results import FitResult
-from .selection import Candidate, Measured, measure, select
+from .selection import Candidate, DataShape, Measured, measure, select
 
 __all__ = ["collect", "make_curve"]
 
@@ -41,9 +40,9 @@ def collect(run: Launched) -> list[FitResult]:
     seeds = run.seeds if polished is not None and opts.init == "lsq" else None
     results = []
     for b, prep in enumerate(preps):
-        data_turning = turning(prep.norm_pts, prep.space.closed)
+        data = DataShape.of(prep.norm_pts, prep.space.closed)
 
-        def solution(i, b=b, prep=prep, data_turning=data_turning):
+        def solution(i, b=b, prep=prep, data=data):
             best = Candidate(swarm[0][b, i], float(swarm[1][b, i]), "swarm")
             other = (
                 None
@@ -56,7 +55,7 @@ def collect(run: Launched) -> list[FitResult]:
                 polished_seed = _polished_seed(polished, b, i)
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
-            chosen = select(best, other, on_data, data_turning, fits, polished_seed)
+            chosen = select(best, other, on_data, data, fits, polished_seed)
             return make_curve(chosen, k, n, int(swarm[2][b, i]), prep)
 
         solutions = host_map(solution, range(len(pairs)))
@@ -133,6 +132,7 @@ def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:
             "seed": prep.seed_value,
             "max_excursion": dev.max_excursion,
             "rms_excursion": dev.rms_excursion,
+            "self_crossings": dev.crossings,
         },
     )
 

@@ -19,11 +19,13 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .projection import curve_derivatives, dense_parameters, distance_to_polyline
 
 __all__ = [
     "Deviations",
+    "crossings",
     "curve_polyline",
     "data_polyline",
     "deviations",
@@ -53,6 +55,7 @@ class Deviations(NamedTuple):
     mean_excursion: float  # arc-length mean of the same
     rms_excursion: float  # arc-length root mean square of the same
     turning: float  # the curve's total turning, radians (a fold or a loop adds about pi)
+    crossings: int = 0  # where the curve crosses itself (2D; a 3D curve: 0)
 
 
 def data_polyline(points: np.ndarray, closed: bool) -> np.ndarray:
@@ -121,6 +124,56 @@ def turning(vertices: np.ndarray, closed: bool) -> float:
     return float(np.sum(np.arccos(cosines)))
 
 
+def crossings(vertices: np.ndarray, closed: bool) -> int:
+    """How often the polyline through ``vertices`` in order (closed: back to the first)
+    crosses itself: pairs of non-adjacent chords that cross properly (touching and
+    overlapping chords do not count).  A 3D polyline: 0 (a loop in space need not cross;
+    the turning sees it).  A curve that crosses itself where its data do not has made a
+    loop whose turning may replace the data's own, so the turning alone can miss it.
+
+    The chords are cut into pieces of at most twice the median chord (a piece's crossings
+    are its chord's), and only pieces whose middles lie within one piece's length of each
+    other are tested (a k-d tree): linear in the vertices for a curve that does not pile
+    up on itself."""
+    pts = data_polyline(vertices, closed)
+    if pts.shape[1] != 2 or len(pts) < 4:
+        return 0
+    a, b, chord = _pieces(pts)
+    mid = 0.5 * (a + b)
+    reach = float(np.max(np.linalg.norm(b - a, axis=1)))
+    tree = cKDTree(mid, balanced_tree=False, compact_nodes=False)  # quicker to build
+    i, j = tree.query_pairs(reach, output_type="ndarray").T  # i < j
+    apart = chord[j] - chord[i] > 1  # pieces of one chord or of neighbours meet at ends
+    if closed:
+        apart &= (chord[i] != 0) | (chord[j] != chord[-1])  # the seam's two chords meet
+    i, j = i[apart], j[apart]
+    d1, d2 = _side(a[i], b[i], a[j]), _side(a[i], b[i], b[j])
+    d3, d4 = _side(a[j], b[j], a[i]), _side(a[j], b[j], b[i])
+    return int(np.sum((d1 * d2 < 0) & (d3 * d4 < 0)))
+
+
+def _pieces(pts: np.ndarray):
+    """The chords of the polyline ``pts`` cut into equal pieces of at most twice the
+    median chord: ``(starts, ends, chord index of each piece)``."""
+    length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    longest = 2.0 * float(np.median(length[length > 0])) if np.any(length > 0) else 1.0
+    cuts = np.maximum(np.ceil(length / longest), 1).astype(np.int64)
+    if np.all(cuts == 1):
+        return pts[:-1], pts[1:], np.arange(len(length))
+    chord = np.repeat(np.arange(len(length)), cuts)
+    step = np.arange(len(chord)) - np.repeat(np.cumsum(cuts) - cuts, cuts)
+    frac = (step / cuts[chord])[:, None]
+    span = (pts[1:] - pts[:-1])[chord]
+    return pts[chord] + frac * span, pts[chord] + (frac + 1.0 / cuts[chord][:, None]) * span, chord
+
+
+def _side(a, b, c) -> np.ndarray:
+    """Which side of the line through ``a`` and ``b`` each ``c`` lies on (the sign of the
+    2D cross product; 0 on the line)."""
+    (bx, by), (cx, cy) = (b - a).T, (c - a).T
+    return np.sign(bx * cy - by * cx)
+
+
 def sample_excursions(samples, polyline) -> tuple[float, float, float]:
     """``(max, arc-length mean, arc-length RMS)`` of the distances from a densely sampled
     curve ``samples`` (M, D), in order, to the polyline with vertices ``polyline`` (a
@@ -150,4 +203,5 @@ def deviations(points, ctrl, weights, t, k, closed, data_distances) -> Deviation
         mean_excursion=mean,
         rms_excursion=rms,
         turning=turning(samples[:-1] if closed else samples, closed),
+        crossings=crossings(samples[:-1] if closed else samples, closed),
     )

@@ -5,8 +5,8 @@ Every swarm has up to five candidates: its best position, its polished one
 fits, its seed and the classic chord-length fit (:mod:`swarmcurves_jax.seeds`).
 :func:`measure` measures each by true projection both ways
 (:mod:`swarmcurves_jax.projection`, :mod:`swarmcurves_jax.measures`) in float64 on the
-host; :func:`select` keeps the one that stays closest to the data without looping where
-the data do not.
+host; :func:`select` keeps the one that stays closest to the data without looping or
+crossing itself where the data do not.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ from typing import NamedTuple
 import numpy as np
 
 from .layout import Layout, knot_vector
-from .measures import Deviations, deviations
+from .measures import Deviations, crossings, deviations, turning
 from .projection import project_points
 
-__all__ = ["Candidate", "Measured", "EXTRA_TURNING", "select", "measure"]
+__all__ = ["Candidate", "DataShape", "Measured", "EXTRA_TURNING", "select", "measure"]
 
 
 class Candidate(NamedTuple):
@@ -32,6 +32,18 @@ class Candidate(NamedTuple):
     position: np.ndarray
     fitness: float | None
     source: str
+
+
+class DataShape(NamedTuple):
+    """How the polyline through the data turns (radians) and how often it crosses itself:
+    a curve that follows the data turns and crosses about as often."""
+
+    turning: float
+    crossings: int = 0
+
+    @classmethod
+    def of(cls, points: np.ndarray, closed: bool) -> "DataShape":
+        return cls(turning(points, closed), crossings(points, closed))
 
 
 class Measured(NamedTuple):
@@ -60,7 +72,7 @@ def select(
     best: Candidate,
     polished: Candidate | None,
     measure,
-    data_turning: float,
+    data: DataShape,
     fits: Sequence[Candidate] = (),
     polished_seed: Candidate | None = None,
 ) -> Measured:
@@ -69,47 +81,48 @@ def select(
 
     Its best, or its polished one if that one has the lower fitness, the lower two-sided
     ``mean_deviation`` and the lower product of the two measures
-    (:func:`_closer_together`), and turns at most :data:`EXTRA_TURNING` more than the best
-    or the data (``data_turning``) do: the fitness is the device's estimate, and neither
-    it nor the one-sided error sees a polish that lowers it by sending a stretch of curve
-    away from the data or folding it back on itself.  Then the ``polished_seed`` by the
+    (:func:`_closer_together`), and is shaped as the best or the ``data`` are
+    (:func:`_shaped_as`: turning at most :data:`EXTRA_TURNING` more, crossing itself no
+    more often): the fitness is the device's estimate, and neither it nor the one-sided
+    error sees a polish that lowers it by sending a stretch of curve away from the data
+    or folding it back on itself.  Then the ``polished_seed`` by the
     same tests but the fitness (the polish keeps the start with the lowest hold-out mean,
     which does not see a gap: at complex_path0's 10 control points the polished seed's
     mean is the same within 0.03 % and its largest deviation 0.257 against 0.308).
     Then each least-squares fit in ``fits`` (the swarm's seed, the classic chord-length
     fit), in turn, where it is closer to the data (a lower mean, :func:`_lower_mean`, or a
-    smaller worst gap, :func:`_smaller_gap`) and turns no more than that: the swarm
-    minimises a mean, and with too few control points for the shape its curve can leave a
-    larger gap than a least-squares fit, or make a small loop.  Any of them also replaces
-    a curve that loops where the data do not, whatever its fitness, if it does not and
-    strays less (:func:`_untangles`): the fitness samples the curve a few times a span,
-    and a loop between its samples costs it nothing.
+    smaller worst gap, :func:`_smaller_gap`) and shaped no worse: the swarm minimises a
+    mean, and with too few control points for the shape its curve can leave a larger gap
+    than a least-squares fit, or make a small loop.  Any of them also replaces a curve
+    that loops where the data do not, whatever its fitness, if it does not and strays
+    less (:func:`_untangles`): the fitness samples the curve a few times a span, and a
+    loop between its samples costs it nothing.
     """
     chosen = measure(best)
     if polished is not None:
         lower = polished.fitness < best.fitness
-        if lower or _loops(chosen, data_turning):
+        if lower or _loops(chosen, data):
             other = measure(polished)
-            if _replaces(other, chosen, lower and _polished_closer(other, chosen), data_turning):
+            if _replaces(other, chosen, lower and _polished_closer(other, chosen), data):
                 chosen = other
     if polished_seed is not None:
         other = measure(polished_seed)
-        if _replaces(other, chosen, _polished_closer(other, chosen), data_turning):
+        if _replaces(other, chosen, _polished_closer(other, chosen), data):
             chosen = other
     for fit in fits:
         other = measure(fit)
         closer = _lower_mean(other, chosen) or _smaller_gap(other, chosen)
-        if _replaces(other, chosen, closer, data_turning):
+        if _replaces(other, chosen, closer, data):
             chosen = other
     return chosen
 
 
-def _replaces(other: Measured, chosen: Measured, closer: bool, data_turning: float) -> bool:
+def _replaces(other: Measured, chosen: Measured, closer: bool, data: DataShape) -> bool:
     """Whether ``other`` is reported instead of ``chosen``: ``closer`` to the data (the
-    caller's test) and turning as they do, or untangling a loop of ``chosen``."""
-    if closer and _turns_as_data(other, chosen, data_turning):
+    caller's test) and shaped as they are, or untangling a loop of ``chosen``."""
+    if closer and _shaped_as(other, chosen, data):
         return True
-    return _untangles(other, chosen, data_turning)
+    return _untangles(other, chosen, data)
 
 
 def _lower_mean(other: Measured, chosen: Measured) -> bool:
@@ -143,26 +156,31 @@ def _smaller_gap(other: Measured, chosen: Measured) -> bool:
     return nearer and other.deviation.max_deviation <= _or_inf(chosen.deviation.max_deviation)
 
 
-def _loops(m: Measured, data_turning: float) -> bool:
+def _loops(m: Measured, data: DataShape) -> bool:
     """Whether a curve loops where the data do not: it turns more than
-    :data:`EXTRA_TURNING` beyond the data polyline."""
-    return m.deviation.turning > data_turning + EXTRA_TURNING
+    :data:`EXTRA_TURNING` beyond the data polyline, or crosses itself more often.  A loop
+    around a sharp peak of the data can turn as the peak did (f4's cubic with 5 control
+    points: 6.6 radians against the data's 6.6) and still cross itself."""
+    dev = m.deviation
+    return dev.turning > data.turning + EXTRA_TURNING or dev.crossings > data.crossings
 
 
-def _untangles(other: Measured, chosen: Measured, data_turning: float) -> bool:
+def _untangles(other: Measured, chosen: Measured, data: DataShape) -> bool:
     """Whether ``chosen`` loops where the data do not and ``other`` does not, with a
     smaller largest deviation: a small loop at a sharp corner of the data lowers the mean
     distance there and leaves the data."""
-    if not _loops(chosen, data_turning) or _loops(other, data_turning):
+    if not _loops(chosen, data) or _loops(other, data):
         return False
     return other.deviation.max_deviation < _or_inf(chosen.deviation.max_deviation)
 
 
-def _turns_as_data(other: Measured, chosen: Measured, data_turning: float) -> bool:
+def _shaped_as(other: Measured, chosen: Measured, data: DataShape) -> bool:
     """Whether ``other`` turns at most :data:`EXTRA_TURNING` more than ``chosen`` or the
-    data polyline, whichever turns more."""
-    room = max(chosen.deviation.turning, data_turning) + EXTRA_TURNING
-    return other.deviation.turning <= room
+    data polyline, whichever turns more, and crosses itself no more often than the one
+    of them that crosses itself more."""
+    room = max(chosen.deviation.turning, data.turning) + EXTRA_TURNING
+    allowed = max(chosen.deviation.crossings, data.crossings)
+    return other.deviation.turning <= room and other.deviation.crossings <= allowed
 
 
 def _or_inf(x: float) -> float:

@@ -7,12 +7,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from swarmcurves_jax import Curve
 from swarmcurves_jax.excursions import data_segments, excursion
 from swarmcurves_jax.span_basis import curve_samples, make_span_basis
 from swarmcurves_jax.knots import make_knots
 from swarmcurves_jax.measures import (
+    crossings,
     curve_polyline,
     deviations,
     excursions,
@@ -134,3 +137,48 @@ def test_sample_excursions_of_a_peer_curve_are_arc_length_weighted():
     assert mean == pytest.approx((3 * 1 + 1 * 0.5 + 1 * 0) / 5)
     assert rms == pytest.approx(np.sqrt((3 * 1 + 1 * 0.5 + 0) / 5))
     assert median_spacing(np.array([[0, 0], [1, 0], [3, 0], [6, 0]]), closed=False) == 2.0
+
+
+def _every_crossing(vertices, closed) -> int:
+    """Proper crossings of a polyline's non-adjacent chords, every pair tested."""
+    pts = np.vstack([vertices, vertices[:1]]) if closed else vertices
+    m = len(pts) - 1
+
+    def side(a, b, c):
+        return np.sign((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+
+    count = 0
+    for i in range(m):
+        for j in range(i + 2, m - (closed and i == 0)):
+            a, b, c, d = pts[i], pts[i + 1], pts[j], pts[j + 1]
+            count += bool(side(a, b, c) * side(a, b, d) < 0 and side(c, d, a) * side(c, d, b) < 0)
+    return count
+
+
+@given(
+    st.integers(0, 2**32 - 1), st.integers(3, 40), st.booleans(), st.floats(1.0, 100.0)
+)
+def test_crossings_are_every_pair_of_chords_that_cross(seed, n, closed, spread):
+    """Random walks whose steps differ in length by up to ``spread`` times (long chords
+    are cut into pieces before the search): the count equals the pairs of non-adjacent
+    chords that cross, every pair tested."""
+    rng = np.random.default_rng(seed)
+    steps = rng.normal(size=(n, 2)) * np.exp(rng.uniform(0, np.log(spread), size=(n, 1)))
+    walk = np.cumsum(steps, axis=0)
+    assert crossings(walk, closed) == _every_crossing(walk, closed)
+
+
+def test_crossings_of_known_curves():
+    """A figure of eight crosses itself once, a circle and a spiral's open arc never, a
+    limacon with an inner loop once (at the origin); two chords that share an end do
+    not cross, and a 3D curve is not counted (a loop in space need not cross)."""
+    t = np.linspace(0, 2 * np.pi, 4000, endpoint=False)
+    assert crossings(np.c_[np.sin(2 * t), np.sin(t)], True) == 1
+    assert crossings(np.c_[np.cos(t), np.sin(t)], True) == 0
+    u = np.linspace(0, 1, 20000)
+    assert crossings(np.c_[u * np.cos(40 * u), u * np.sin(40 * u)], False) == 0
+    r = 0.5 + np.cos(t)
+    assert crossings(np.c_[r * np.cos(t), r * np.sin(t)], True) == 1
+    assert crossings(np.array([[0, 0], [1, 0], [1, 1], [0, 0.0]]), False) == 0
+    helix = np.c_[np.cos(t), np.sin(t), t]
+    assert crossings(helix, False) == 0
