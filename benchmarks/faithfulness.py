@@ -44,7 +44,7 @@ import numpy as np  # noqa: E402
 from swarmcurves_jax import Curve, fit  # noqa: E402
 from swarmcurves_jax.datasets import ANALYTIC, read_outlines  # noqa: E402
 from swarmcurves_jax.knots import make_knots  # noqa: E402
-from swarmcurves_jax.measures import data_polyline, deviations  # noqa: E402
+from swarmcurves_jax.measures import crossings, data_polyline, deviations  # noqa: E402
 from swarmcurves_jax.paper import TABLE1, TRUTH_SAMPLES, arc_length_samples  # noqa: E402
 from swarmcurves_jax.prepare import normalise  # noqa: E402
 from swarmcurves_jax.projection import distance_to_polyline, project_points  # noqa: E402
@@ -84,7 +84,14 @@ def measure(curve: Curve, pts: np.ndarray, truth: np.ndarray, closed: bool) -> d
         "max_deviation": dev.max_deviation,
         "truth_mean": sym,
         "truth_hausdorff": haus,
+        "crossings": dev.crossings,
     }
+
+
+def crossing_counts(result, data_crossings: int) -> list[int]:
+    """The control-point counts of a fit's curves that cross themselves more often than
+    the data polyline does (``curve.info["self_crossings"]``)."""
+    return [c.n_ctrl for c in result.solutions if c.info["self_crossings"] > data_crossings]
 
 
 def in_frame(curve: Curve, center, scale) -> Curve:
@@ -127,6 +134,8 @@ def run_table1(args) -> list[dict]:
         curve = in_frame(chosen, center, scale)
         row = {"case": name, "n": chosen.n_ctrl, "paper": paper_err, "wall_time": wall}
         row.update(measure(curve, pts, truth, False))
+        row["crossing"] = crossing_counts(result, crossings(pts, False))
+        row["fits"] = len(result.solutions)
         row["curve"] = curve
         row["points"], row["truth"] = pts, truth
         rows.append(row)
@@ -151,6 +160,7 @@ def run_outlines(args) -> list[dict]:
             row = {"case": name, "n": n, "degree": args.degree, "closed": closed, "wall_time": wall}
             row["ours"] = measure(ours, pts, truth, closed)
             row["lsq"] = measure(base, pts, truth, closed)
+            row["data_crossings"] = crossings(pts, closed)
             row["curves"] = (ours, base)
             row["points"], row["truth"] = pts, truth
             rows.append(row)
@@ -183,6 +193,14 @@ def table1_lines(rows) -> list[str]:
         )
     lines += ["", f"Target (sym. dist. <= 2 x error and error <= paper, every case): "
               f"{'met' if met_all else 'NOT met'}", ""]
+    crossing = [f"{r['case']} at {', '.join(map(str, r['crossing']))}" for r in rows
+                if r["crossing"]]
+    lines += [
+        f"Curves that cross themselves where the data polyline does not, every count fitted: "
+        f"{sum(len(r['crossing']) for r in rows)} of {sum(r['fits'] for r in rows)}"
+        + (f" ({'; '.join(crossing)})" if crossing else ""),
+        "",
+    ]
     return lines
 
 
@@ -221,9 +239,17 @@ def outline_lines(rows) -> list[str]:
     lines += [
         f"- Median mean data error / LSQ's <= 0.4: {'met' if median <= 0.4 else 'NOT met'} "
         f"(median {median:.2f}; better in {sum(e < 1 for e in err_ratio)} of {len(err_ratio)})",
+        "- Curves that cross themselves where the data polyline does not: "
+        + f"ours {_crossing(rows, 'ours')}, LSQ {_crossing(rows, 'lsq')}",
         "",
     ]
     return lines
+
+
+def _crossing(rows, key: str) -> str:
+    """How many of the rows' ``key`` curves cross themselves where their data do not."""
+    cases = [f"{r['case']} at {r['n']}" for r in rows if r[key]["crossings"] > r["data_crossings"]]
+    return f"{len(cases)} of {len(rows)}" + (f" ({', '.join(cases)})" if cases else "")
 
 
 def draw_table1(rows, path: Path) -> Path:
