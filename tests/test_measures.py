@@ -155,9 +155,7 @@ def _every_crossing(vertices, closed) -> int:
     return count
 
 
-@given(
-    st.integers(0, 2**32 - 1), st.integers(3, 40), st.booleans(), st.floats(1.0, 100.0)
-)
+@given(st.integers(0, 2**32 - 1), st.integers(3, 40), st.booleans(), st.floats(1.0, 100.0))
 def test_crossings_are_every_pair_of_chords_that_cross(seed, n, closed, spread):
     """Random walks whose steps differ in length by up to ``spread`` times (long chords
     are cut into pieces before the search): the count equals the pairs of non-adjacent
