@@ -131,33 +131,67 @@ def crossings(vertices: np.ndarray, closed: bool) -> int:
     the turning sees it).  A curve that crosses itself where its data do not has made a
     loop whose turning may replace the data's own, so the turning alone can miss it.
 
-    The chords are cut into pieces of at most twice the median chord (a piece's crossings
-    are its chord's), and only pieces whose middles lie within one piece's length of each
-    other are tested (a k-d tree): linear in the vertices for a curve that does not pile
-    up on itself."""
+    The chords are cut into pieces about as long as the median chord (:func:`_pieces`; a
+    piece's crossings are its chord's, a chord of length zero crosses nothing), and only
+    pieces whose middles lie within one piece's length of each other are tested (a k-d
+    tree, :func:`_near_pairs`): linear in the vertices for a curve that does not pile up
+    on itself."""
     pts = data_polyline(vertices, closed)
     if pts.shape[1] != 2 or len(pts) < 4:
         return 0
     a, b, chord = _pieces(pts)
-    mid = 0.5 * (a + b)
-    reach = float(np.max(np.linalg.norm(b - a, axis=1)))
-    tree = cKDTree(mid, balanced_tree=False, compact_nodes=False)  # quicker to build
-    i, j = tree.query_pairs(reach, output_type="ndarray").T  # i < j
+    if len(chord) < 2:
+        return 0
+    i, j = _near_pairs(0.5 * (a + b), float(np.max(np.linalg.norm(b - a, axis=1))))
     apart = chord[j] - chord[i] > 1  # pieces of one chord or of neighbours meet at ends
     if closed:
-        apart &= (chord[i] != 0) | (chord[j] != chord[-1])  # the seam's two chords meet
+        apart &= (chord[i] != 0) | (chord[j] != len(pts) - 2)  # the seam's two chords meet
     i, j = i[apart], j[apart]
     d1, d2 = _side(a[i], b[i], a[j]), _side(a[i], b[i], b[j])
     d3, d4 = _side(a[j], b[j], a[i]), _side(a[j], b[j], b[i])
     return int(np.sum((d1 * d2 < 0) & (d3 * d4 < 0)))
 
 
+#: More pairs than this per piece is a pile-up (a scan's dwell: thousands of points within
+#: one chord's length); each piece is then paired with its :data:`NEAREST` nearest only.
+MAX_PAIRS_PER_PIECE, NEAREST = 32, 16
+#: How many pieces, evenly strided, :func:`_near_pairs` counts the neighbours of first;
+#: up to this many pieces every pair within reach is listed (at most half a million).
+PROBES = 1000
+
+
+def _near_pairs(mid: np.ndarray, reach: float):
+    """Index pairs ``i < j`` of the points ``mid`` within ``reach`` of each other; where
+    they pile up (more than :data:`MAX_PAIRS_PER_PIECE` a point, judged on every
+    ``n / PROBES``-th point), only the pairs among each point's :data:`NEAREST` nearest
+    within ``reach``, so that the pairs never outgrow memory (the crossings counted
+    there are a lower bound).  A pile-up the probes miss holds fewer than ``n / PROBES``
+    points, and its pairs are few; up to :data:`PROBES` points, every pair is listed."""
+    n = len(mid)
+    tree = cKDTree(mid, balanced_tree=False, compact_nodes=False)  # quicker to build
+    if n <= PROBES:
+        return tree.query_pairs(reach, output_type="ndarray").T
+    probes = cKDTree(mid[:: n // PROBES])
+    # ordered pairs, each probe with itself included, counted without being listed
+    if probes.count_neighbors(tree, reach) <= (2 * MAX_PAIRS_PER_PIECE + 1) * probes.n:
+        return tree.query_pairs(reach, output_type="ndarray").T
+    _, near = tree.query(mid, k=NEAREST, distance_upper_bound=reach)
+    i, j = np.repeat(np.arange(n), NEAREST), near.ravel()
+    keep = (j < n) & (j > i)  # j == n: fewer than NEAREST within reach
+    return i[keep], j[keep]
+
+
 def _pieces(pts: np.ndarray):
-    """The chords of the polyline ``pts`` cut into equal pieces of at most twice the
-    median chord: ``(starts, ends, chord index of each piece)``."""
+    """The chords of the polyline ``pts`` of non-zero length, cut into equal pieces of at
+    most twice the median chord, or of a quarter of the mean chord where that is longer
+    (at most five pieces a chord on average, however the chords' lengths spread):
+    ``(starts, ends, chord index of each piece)``."""
     length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    longest = 2.0 * float(np.median(length[length > 0])) if np.any(length > 0) else 1.0
-    cuts = np.maximum(np.ceil(length / longest), 1).astype(np.int64)
+    positive = length[length > 0]
+    if not len(positive):
+        return pts[:0], pts[:0], np.arange(0)
+    longest = max(2.0 * float(np.median(positive)), float(np.mean(length)) / 4.0)
+    cuts = np.ceil(length / longest).astype(np.int64)  # 0 for a chord of length zero
     if np.all(cuts == 1):
         return pts[:-1], pts[1:], np.arange(len(length))
     chord = np.repeat(np.arange(len(length)), cuts)

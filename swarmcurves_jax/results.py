@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from .curves import Curve
+from .measures import crossings
 
 __all__ = ["FitResult", "Table", "DEFAULT_PCT_DIAG"]
 
@@ -104,13 +105,15 @@ class FitResult:
 
     def sparsest(self, tolerance: float | None = None, *, pct_diag: float | None = None) -> Curve | None:
         """The solution with the fewest control points whose curve stays within a
-        tolerance of the data, or ``None``.
+        tolerance of the data and does not cross itself where they do not, or ``None``.
 
         Within: ``max_deviation`` (the Hausdorff distance between the curve and the
         polyline through the data, both ways) at most ``tolerance`` in the caller's units,
         or at most ``pct_diag`` % of the data's bounding-box diagonal (default 1 %).  A
         CAD tolerance is a bound on the largest deviation, as OpenCASCADE's approximation
-        takes one.  Ties on the count go to the lower ``mean_deviation``.
+        takes one.  A curve that crosses itself more often than the data polyline
+        (``curve.info["self_crossings"]``) has looped, and a loop can stay within a coarse
+        tolerance: it is passed over.  Ties on the count go to the lower ``mean_deviation``.
         """
         if tolerance is not None and pct_diag is not None:
             raise ValueError("give tolerance (caller's units) or pct_diag, not both")
@@ -123,6 +126,10 @@ class FitResult:
             if not pct_diag >= 0:
                 raise ValueError(f"pct_diag must be a number >= 0, got {pct_diag!r}")
             ok = [c for c in self.solutions if c.max_deviation_pct_diag <= pct_diag]
+        if ok:
+            closed = self.solutions[0].closed
+            allowed = crossings(self.points, closed)
+            ok = [c for c in ok if c.info.get("self_crossings", 0) <= allowed]
         return min(ok, key=lambda c: (c.n_ctrl, _mean_deviation(c))) if ok else None
 
     def knee(self, degree: int | None = None) -> Curve:

@@ -180,3 +180,18 @@ def test_crossings_of_known_curves():
     assert crossings(np.array([[0, 0], [1, 0], [1, 1], [0, 0.0]]), False) == 0
     helix = np.c_[np.cos(t), np.sin(t), t]
     assert crossings(helix, False) == 0
+
+
+def test_crossings_of_a_pile_up_are_counted_in_bounded_memory():
+    """A scan that dwells: 30,000 points creeping along 1e-4 between a figure of eight
+    (4,000 points, one crossing) and a straight leg; and 100,000 copies of one point.
+    Pairing every nearby piece would list 4.5e8 pairs at the dwell; each piece there is
+    paired with its 16 nearest instead, and the eight's crossing is still found.  Copies
+    of one point have no chord to cross."""
+    assert crossings(np.zeros((100_000, 2)), False) == 0
+    assert crossings(np.zeros((100_000, 2)), True) == 0
+    t = np.linspace(0.3, 2 * np.pi + 0.2, 4000)
+    eight = np.c_[np.sin(2 * t), np.sin(t)]
+    dwell = eight[-1] + np.c_[np.linspace(0, 1e-4, 30_000), np.zeros(30_000)]
+    leg = dwell[-1] + np.c_[np.linspace(0, 1, 2000)[1:], np.zeros(1999)]
+    assert crossings(np.vstack([eight, dwell, leg]), False) == 1
