@@ -137,8 +137,8 @@ def crossings(vertices: np.ndarray, closed: bool) -> int:
     tree, :func:`_near_pairs`): linear in the vertices for a curve that does not pile up
     on itself."""
     pts = data_polyline(vertices, closed)
-    if pts.shape[1] != 2 or len(pts) < 4:
-        return 0
+    if pts.shape[1] != 2 or len(pts) < 4 or not np.all(np.isfinite(pts)):
+        return 0  # a curve with non-finite samples: its other measures say so (nan)
     a, b, chord = _pieces(pts)
     if len(chord) < 2:
         return 0

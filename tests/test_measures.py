@@ -169,7 +169,8 @@ def test_crossings_are_every_pair_of_chords_that_cross(seed, n, closed, spread):
 def test_crossings_of_known_curves():
     """A figure of eight crosses itself once, a circle and a spiral's open arc never, a
     limacon with an inner loop once (at the origin); two chords that share an end do
-    not cross, and a 3D curve is not counted (a loop in space need not cross)."""
+    not cross, a 3D curve is not counted (a loop in space need not cross), nor a polyline
+    with a non-finite vertex."""
     t = np.linspace(0, 2 * np.pi, 4000, endpoint=False)
     assert crossings(np.c_[np.sin(2 * t), np.sin(t)], True) == 1
     assert crossings(np.c_[np.cos(t), np.sin(t)], True) == 0
@@ -180,6 +181,8 @@ def test_crossings_of_known_curves():
     assert crossings(np.array([[0, 0], [1, 0], [1, 1], [0, 0.0]]), False) == 0
     helix = np.c_[np.cos(t), np.sin(t), t]
     assert crossings(helix, False) == 0
+    nan = np.array([[0.0, 0.0], [1.0, 1.0], [np.nan, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    assert crossings(nan, False) == 0
 
 
 def test_crossings_of_a_pile_up_are_counted_in_bounded_memory():
