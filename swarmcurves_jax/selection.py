@@ -5,8 +5,8 @@ Every swarm has up to five candidates: its best position, its polished one
 fits, its seed and the classic chord-length fit (:mod:`swarmcurves_jax.seeds`).
 :func:`measure` measures each by true projection both ways
 (:mod:`swarmcurves_jax.projection`, :mod:`swarmcurves_jax.measures`) in float64 on the
-host; :func:`select` keeps the one that stays closest to the data without looping or
-crossing itself where the data do not.
+host; :func:`select` keeps the one that stays closest to the data without looping where
+the data do not, and never trades a curve for one that crosses itself more often.
 """
 
 from __future__ import annotations
@@ -162,7 +162,7 @@ def _loops(m: Measured, data: DataShape) -> bool:
     data polyline does is no test here, only a bar to replacing (:func:`_shaped_as`): on
     noisy data a curve that doubles back crosses itself (f4 with noise 0.04 at 8 control
     points: four times, the data polyline once), and the one candidate that crossed less
-    was twice as far from the true curve."""
+    was 2.5 times as far from the true curve."""
     return m.deviation.turning > data.turning + EXTRA_TURNING
 
 
