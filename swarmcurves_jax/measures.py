@@ -55,7 +55,7 @@ class Deviations(NamedTuple):
     mean_excursion: float  # arc-length mean of the same
     rms_excursion: float  # arc-length root mean square of the same
     turning: float  # the curve's total turning, radians (a fold or a loop adds about pi)
-    crossings: int = 0  # where the curve crosses itself (2D; a 3D curve: 0)
+    crossings: int  # how often the curve crosses itself (2D; a 3D curve: 0)
 
 
 def data_polyline(points: np.ndarray, closed: bool) -> np.ndarray:

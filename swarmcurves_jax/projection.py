@@ -84,19 +84,20 @@ def _nearest_chords(points, samples, top=3):
 
     A chord whose two ends lie at least ``R`` from a point is at least
     ``sqrt(R^2 - L^2/4)`` from it (``L``: the longest chord), and a chord within ``r`` has
-    an end within ``sqrt(r^2 + L^2/4)``.  So the chords at the ``near`` nearest samples (a
-    k-d tree) hold the answer whenever the farthest of those samples lies that far, with
-    ``r`` the ``top``-th nearest chord's distance among them.  A point they leave unsure
-    asks the tree for every sample within that reach and ranks the chords there
-    (:func:`_rank_chords_at`).  Exact either way, and about 10x quicker than searching
-    every chord for every point (measured on W1's solutions, from 16 samples; 16 rather
-    than 32, and an unbalanced tree: 115 -> 98 ms, the same chords).  The bound by
-    ``r + L/2`` instead left 98 % of a far curve's samples unsure (``R`` hardly exceeds
-    ``r`` there).  Asking unsure points again for 8 times as many samples, until
-    sure, took 2.6 s against 0.74 s for the curve -> data distances of a curve's 98,000
-    samples to a 20,000-point polyline.  scipy's tree, not pykdtree's (the seeds'):
-    pykdtree's 16-neighbour queries were 5 % quicker on idle cores but 4x slower with both
-    cores busy elsewhere (its OpenMP query waits for its descheduled threads).
+    an end within ``sqrt(r^2 + L^2/4)``.  So the chords at a point's nearest samples (a
+    k-d tree; how many: :func:`_samples_to_settle`) hold the answer whenever the farthest
+    of those samples lies that far, with ``r`` the ``top``-th nearest chord's distance
+    among them.  A point they leave unsure asks the tree for every sample within that
+    reach and ranks the chords there (:func:`_rank_chords_at`).  Exact either way, and
+    about 10x quicker than searching every chord for every point (measured on W1's
+    solutions, from 16 samples; 16 rather than 32, and an unbalanced tree: 115 -> 98 ms,
+    the same chords).  The bound by ``r + L/2`` instead left 98 % of a far curve's
+    samples unsure (``R`` hardly exceeds ``r`` there).  Asking unsure points again for 8
+    times as many samples, until sure, took 2.6 s against 0.74 s for the curve -> data
+    distances of a curve's 98,000 samples to a 20,000-point polyline.  scipy's tree, not
+    pykdtree's (the seeds'): pykdtree's 16-neighbour queries were 5 % quicker on idle
+    cores but 4x slower with both cores busy elsewhere (its OpenMP query waits for its
+    descheduled threads).
     """
     a = samples[:-1]
     ab = samples[1:] - a
