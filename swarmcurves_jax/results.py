@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -100,8 +101,28 @@ class FitResult:
 
     @property
     def best(self) -> Curve:
-        """The solution with the lowest two-sided ``mean_deviation``."""
-        return min(self.solutions, key=_mean_deviation)
+        """The solution with the lowest two-sided ``mean_deviation`` of those that do not
+        cross themselves where the data do not (of all, if every one does): a loop at a
+        corner can have the lowest mean (:meth:`untangled`)."""
+        return min(self.untangled() or self.solutions, key=_mean_deviation)
+
+    def untangled(self) -> list[Curve]:
+        """The solutions that cross themselves no more often than the polyline through
+        the data (``curve.info["self_crossings"]``; noise can make the data cross
+        themselves).  A curve that crosses itself more has looped where the data do not,
+        often in a corner of sparse data, inside the room the fitness leaves a curve
+        between the points: wrong there, whatever its mean.  The helpers pick from these
+        (:meth:`sparsest` only from these)."""
+        return [c for c in self.solutions if not self._crosses_more(c)]
+
+    def _crosses_more(self, curve: Curve) -> bool:
+        """Whether ``curve`` crosses itself more often than the data polyline."""
+        return curve.info.get("self_crossings", 0) > self._data_crossings
+
+    @functools.cached_property
+    def _data_crossings(self) -> int:
+        """How often the polyline through the data crosses itself."""
+        return crossings(self.points, self.solutions[0].closed)
 
     def sparsest(self, tolerance: float | None = None, *, pct_diag: float | None = None) -> Curve | None:
         """The solution with the fewest control points whose curve stays within a
@@ -113,23 +134,20 @@ class FitResult:
         CAD tolerance is a bound on the largest deviation, as OpenCASCADE's approximation
         takes one.  A curve that crosses itself more often than the data polyline
         (``curve.info["self_crossings"]``) has looped, and a loop can stay within a coarse
-        tolerance: it is passed over.  Ties on the count go to the lower ``mean_deviation``.
+        tolerance: it is passed over (:meth:`untangled`).  Ties on the count go to the lower
+        ``mean_deviation``.
         """
         if tolerance is not None and pct_diag is not None:
             raise ValueError("give tolerance (caller's units) or pct_diag, not both")
         if tolerance is not None:
             if not tolerance >= 0:
                 raise ValueError(f"tolerance must be a number >= 0, got {tolerance!r}")
-            ok = [c for c in self.solutions if c.max_deviation * self.scale <= tolerance]
+            ok = [c for c in self.untangled() if c.max_deviation * self.scale <= tolerance]
         else:
             pct_diag = DEFAULT_PCT_DIAG if pct_diag is None else pct_diag
             if not pct_diag >= 0:
                 raise ValueError(f"pct_diag must be a number >= 0, got {pct_diag!r}")
-            ok = [c for c in self.solutions if c.max_deviation_pct_diag <= pct_diag]
-        if ok:
-            closed = self.solutions[0].closed
-            allowed = crossings(self.points, closed)
-            ok = [c for c in ok if c.info.get("self_crossings", 0) <= allowed]
+            ok = [c for c in self.untangled() if c.max_deviation_pct_diag <= pct_diag]
         return min(ok, key=lambda c: (c.n_ctrl, _mean_deviation(c))) if ok else None
 
     def knee(self, degree: int | None = None) -> Curve:
@@ -138,7 +156,9 @@ class FitResult:
 
         Kneedle's rule on ``log10(mean_deviation)`` against ``n``, both scaled to [0, 1]:
         the count furthest below the straight line from the fewest to the most control
-        points.  Needs at least three counts of that degree.
+        points; where that curve crosses itself and the data do not, the next count up that
+        does not (down, if none above does; :meth:`untangled`).  Needs at least three
+        counts of that degree.
         """
         curves = self._of_degree(self.best.degree if degree is None else degree)
         if len(curves) < 3:
@@ -152,7 +172,12 @@ class FitResult:
         span = e[0] - e[-1]
         y = (e - e[-1]) / span if span > 0 else np.zeros_like(e)
         below = (1.0 - x) - y  # the chord runs from (0, 1) to (1, 0)
-        return curves[int(np.argmax(below))]
+        knee = curves[int(np.argmax(below))]
+        untangled = [c for c in curves if not self._crosses_more(c)]
+        if not self._crosses_more(knee) or not untangled:
+            return knee
+        above = [c for c in untangled if c.n_ctrl > knee.n_ctrl]
+        return above[0] if above else untangled[-1]
 
     def select(self, criterion: str = "bic", degree: int | None = None) -> Curve:
         """The solution with the lowest information criterion, ``"bic"`` or ``"aic"``.
@@ -165,11 +190,13 @@ class FitResult:
         squared distance to the data polyline, so a curve that leaves the data between
         the points scores as badly as one that misses them.  Meaningful on noisy data; on
         exact data RSS keeps falling to rounding and the choice is arbitrary.  ``degree``
-        restricts the choice to one degree.
+        restricts the choice to one degree.  Curves that cross themselves where the data do
+        not are passed over (unless every one does; :meth:`untangled`).
         """
         if criterion not in ("bic", "aic"):
             raise ValueError(f"criterion must be 'bic' or 'aic', got {criterion!r}")
         curves = self.solutions if degree is None else self._of_degree(degree)
+        curves = [c for c in curves if not self._crosses_more(c)] or curves
         return min(curves, key=lambda c: _criteria(c, len(self.points))[criterion])
 
     def _of_degree(self, degree: int) -> list[Curve]:

@@ -75,3 +75,33 @@ def test_sparsest_passes_over_a_curve_that_crosses_itself_where_the_data_do_not(
     result = FitResult(curves, points, np.zeros(2), 1.0, np.zeros((2, 1)), "iterations", 0, 0.0)
     assert result.sparsest(pct_diag=1.0).n_ctrl == kept
     assert result.sparsest(0.02).n_ctrl == kept
+
+
+@pytest.mark.parametrize(
+    "data_crosses, crossing, picked",
+    [
+        (False, (6, 9), {"best": 8, "knee": 7, "bic": 8}),  # the loops passed over
+        (True, (6, 9), {"best": 9, "knee": 6, "bic": 9}),  # as often as the data: kept
+        (False, range(4, 10), {"best": 9, "knee": 6, "bic": 9}),  # every curve loops
+    ],
+)
+def test_the_helpers_pass_over_curves_that_cross_themselves_where_the_data_do_not(
+    data_crosses, crossing, picked
+):
+    """Solutions at 4-9 control points whose deviation drops to a knee at 6; the ones at 6
+    (the knee) and 9 (the lowest deviation and BIC) cross themselves once, as a loop in a
+    corner of sparse data does.  Over data that do not cross themselves ``best`` and
+    ``select`` take the next lowest (8), ``knee`` the next count up (7); over a figure of
+    eight, which crosses itself once, or where every curve crosses itself, the loops."""
+    t = np.linspace(0.3, 2 * np.pi + 0.2, 200)
+    points = np.c_[np.sin(2 * t), np.sin(t)] if data_crosses else np.c_[np.cos(t / 2), t]
+    means = dict(zip(range(4, 10), (1e-1, 3e-2, 3e-3, 2e-3, 1.5e-3, 1e-3)))
+    curves = [
+        Curve(3, np.zeros((n, 2)), np.ones(n), make_knots(n, 3, False), rms_error=m,
+              mean_deviation=m, info={"self_crossings": int(n in crossing), "rms_excursion": 0.0})
+        for n, m in means.items()
+    ]
+    result = FitResult(curves, points, np.zeros(2), 1.0, np.zeros((6, 1)), "iterations", 0, 0.0)
+    chosen = {"best": result.best, "knee": result.knee(), "bic": result.select("bic")}
+    assert {name: c.n_ctrl for name, c in chosen.items()} == picked
+    assert len(result.untangled()) == (6 if data_crosses else 6 - len(crossing))
