@@ -88,10 +88,11 @@ def measure(curve: Curve, pts: np.ndarray, truth: np.ndarray, closed: bool) -> d
     }
 
 
-def crossing_counts(result, data_crossings: int) -> list[int]:
+def crossing_counts(result) -> list[int]:
     """The control-point counts of a fit's curves that cross themselves more often than
-    the data polyline does (``curve.info["self_crossings"]``)."""
-    return [c.n_ctrl for c in result.solutions if c.info["self_crossings"] > data_crossings]
+    the data polyline does (the ones ``result.untangled()`` leaves out)."""
+    kept = {id(c) for c in result.untangled()}
+    return [c.n_ctrl for c in result.solutions if id(c) not in kept]
 
 
 def in_frame(curve: Curve, center, scale) -> Curve:
@@ -134,7 +135,7 @@ def run_table1(args) -> list[dict]:
         curve = in_frame(chosen, center, scale)
         row = {"case": name, "n": chosen.n_ctrl, "paper": paper_err, "wall_time": wall}
         row.update(measure(curve, pts, truth, False))
-        row["crossing"] = crossing_counts(result, crossings(pts, False))
+        row["crossing"] = crossing_counts(result)
         row["fits"] = len(result.solutions)
         row["curve"] = curve
         row["points"], row["truth"] = pts, truth

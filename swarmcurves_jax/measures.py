@@ -230,12 +230,13 @@ def deviations(points, ctrl, weights, t, k, closed, data_distances) -> Deviation
     samples = _dense(points, ctrl, weights, t, k, closed)
     far, mean, rms = sample_excursions(samples, data_polyline(points, closed))
     dist = np.asarray(data_distances, dtype=np.float64)
+    vertices = samples[:-1] if closed else samples  # a closed curve's last sample repeats
     return Deviations(
         max_deviation=max(float(np.max(dist)), far),
         mean_deviation=0.5 * (float(np.mean(dist)) + mean),
         max_excursion=far,
         mean_excursion=mean,
         rms_excursion=rms,
-        turning=turning(samples[:-1] if closed else samples, closed),
-        crossings=crossings(samples[:-1] if closed else samples, closed),
+        turning=turning(vertices, closed),
+        crossings=crossings(vertices, closed),
     )

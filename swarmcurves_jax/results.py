@@ -113,11 +113,11 @@ class FitResult:
         often in a corner of sparse data, inside the room the fitness leaves a curve
         between the points: wrong there, whatever its mean.  The helpers pick from these
         (:meth:`sparsest` only from these)."""
-        return [c for c in self.solutions if not self._crosses_more(c)]
+        return self._untangled(self.solutions)
 
-    def _crosses_more(self, curve: Curve) -> bool:
-        """Whether ``curve`` crosses itself more often than the data polyline."""
-        return curve.info.get("self_crossings", 0) > self._data_crossings
+    def _untangled(self, curves: list[Curve]) -> list[Curve]:
+        """Those of ``curves`` that cross themselves no more often than the data polyline."""
+        return [c for c in curves if c.info.get("self_crossings", 0) <= self._data_crossings]
 
     @functools.cached_property
     def _data_crossings(self) -> int:
@@ -173,8 +173,8 @@ class FitResult:
         y = (e - e[-1]) / span if span > 0 else np.zeros_like(e)
         below = (1.0 - x) - y  # the chord runs from (0, 1) to (1, 0)
         knee = curves[int(np.argmax(below))]
-        untangled = [c for c in curves if not self._crosses_more(c)]
-        if not self._crosses_more(knee) or not untangled:
+        untangled = self._untangled(curves)
+        if not untangled or any(c is knee for c in untangled):
             return knee
         above = [c for c in untangled if c.n_ctrl > knee.n_ctrl]
         return above[0] if above else untangled[-1]
@@ -196,7 +196,7 @@ class FitResult:
         if criterion not in ("bic", "aic"):
             raise ValueError(f"criterion must be 'bic' or 'aic', got {criterion!r}")
         curves = self.solutions if degree is None else self._of_degree(degree)
-        curves = [c for c in curves if not self._crosses_more(c)] or curves
+        curves = self._untangled(curves) or curves
         return min(curves, key=lambda c: _criteria(c, len(self.points))[criterion])
 
     def _of_degree(self, degree: int) -> list[Curve]:

@@ -39,7 +39,7 @@ class DataShape(NamedTuple):
     a curve that follows the data turns and crosses about as often."""
 
     turning: float
-    crossings: int = 0
+    crossings: int
 
     @classmethod
     def of(cls, points: np.ndarray, closed: bool) -> "DataShape":

@@ -252,7 +252,7 @@ def _select(
         extra = Candidate(np.zeros(3), None, "polished seed")
         measured[id(extra)] = polished_seed
     pick = lambda c: measured[id(c)]  # noqa: E731
-    return select(best, other, pick, data=DataShape(6.0), fits=fits, polished_seed=extra).name
+    return select(best, other, pick, data=DataShape(6.0, 0), fits=fits, polished_seed=extra).name
 
 
 @pytest.mark.parametrize(
