@@ -1,15 +1,18 @@
-"""Curves that cross themselves where the data do not, and what the helpers pick instead.
+"""Sparse corners and noisy points: where fits loop or fold, and what the helpers pick.
 
     python examples/loops.py [--out docs/figures]
 
-Two inputs where a curve with the lowest mean deviation loops: an L-shaped outline given by
-12 points (its corners and the middles of its edges), fitted closed at 4-12 control points,
-whose 10's curve loops at a corner; and 100 noisy points along a straight line (noise about
-their spacing), fitted at 4-7, whose curves from 5 on fold back and forth along the band of
-noise.  Prints each solution's deviations and self-crossings and what ``best``, ``knee``,
-``select("bic")`` and ``sparsest`` pick (the helpers pass over a curve that crosses itself
-where the data do not), and draws ``loops.png``: the L's 10 (its loop enlarged) and 11, and
-the line's 4 and 6.
+Two inputs that invite a curve to loop or fold.  An L-shaped outline given by 12 points (its
+corners and the middles of its edges), fitted closed at 4-12 control points: curves through
+or near every point overshoot its corners (least-squares seeds from chord lengths or even
+steps loop there; the centripetal seed does not).  And 100 noisy points along a straight
+line (noise about their spacing), fitted at 4-7: a curve that folds back and forth along
+the band of noise passes nearer the points than one that follows them (the swarm pays for
+the arc its curve runs back against the points' order).  Prints each solution's deviations
+and self-crossings and what ``best``, ``knee``, ``select("bic")`` and ``sparsest`` pick (the
+helpers pass over a curve that crosses itself where the data do not), and draws
+``loops.png``: the L's 8 and 12, the 10's small loop at the corner (0, 0) enlarged, and the
+line's 5 and 6.
 """
 
 from __future__ import annotations
@@ -64,14 +67,14 @@ def main() -> None:
     fig = plt.figure(figsize=(11, 7))
     top = [fig.add_subplot(2, 3, i) for i in (1, 2, 3)]
     bottom = [fig.add_subplot(4, 1, i) for i in (3, 4)]
-    draw(top[0], L_OUTLINE, outline[3, 10], closed=True)
-    draw(top[1], L_OUTLINE, outline[3, 10], closed=True, title="the same, at the corner (0, 2)")
-    top[1].set_xlim(-0.12, 0.12)
-    top[1].set_ylim(1.88, 2.12)
-    draw(top[2], L_OUTLINE, outline[3, 11], closed=True)
+    draw(top[0], L_OUTLINE, outline[3, 8], closed=True)
+    draw(top[1], L_OUTLINE, outline[3, 12], closed=True)
+    draw(top[2], L_OUTLINE, outline[3, 10], closed=True, title="the 10, at the corner (0, 0)")
+    top[2].set_xlim(-0.03, 0.03)
+    top[2].set_ylim(-0.03, 0.03)
     for ax in top:
         ax.set_aspect("equal")
-    for ax, n in zip(bottom, (4, 6)):
+    for ax, n in zip(bottom, (5, 6)):
         draw(ax, NOISY_LINE, line[3, n])
     fig.tight_layout()
     path = Path(args.out) / "loops.png"

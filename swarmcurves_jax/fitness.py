@@ -353,6 +353,12 @@ def dense_starts(points: jax.Array, samples: jax.Array, tangents: jax.Array) -> 
     return _start(*_search_dense(points, samples, tangents), points.dtype)
 
 
+def kept(u: jax.Array) -> jax.Array:
+    """``u`` exactly, behind an operation XLA:CPU will not copy into each reader of ``u``
+    (:func:`span_and_start`): a search fused into the same loop runs once."""
+    return jnp.sqrt(jnp.maximum(u * u, 0.0))
+
+
 def span_and_start(start: jax.Array, basis: SpanBasis, dtype, barrier: bool = True):
     """Each point's span (int32) and start parameter ``tau`` in it, from its search start
     ``u`` (:func:`search_starts`, in samples).
@@ -378,7 +384,7 @@ def span_and_start(start: jax.Array, basis: SpanBasis, dtype, barrier: bool = Tr
     """
     u = start.astype(dtype)
     if barrier:
-        u = jnp.sqrt(jnp.maximum(u * u, 0.0))
+        u = kept(u)
     per = basis.per_span.astype(dtype)
     inv = 1.0 / per
     span = jnp.minimum(jnp.floor((jnp.floor(u) + 0.5) * inv), (basis.num_spans - 1).astype(dtype))

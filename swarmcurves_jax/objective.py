@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
-from .excursions import Polyline, excursion, sample_excursions
+from .excursions import Polyline, excursion, runs_back, sample_excursions
 from .fitness import dense_starts, foot_samples, nearest_segments, point_distances
 from .layout import Layout, geometry
 from .span_basis import PRECISION, SpanBasis, curve_samples, make_span_basis
@@ -74,17 +74,22 @@ def foot_starts(q, basis, points, space, pair, k):
     return foot_samples(*geometry(q, space), basis, points, dense=False)
 
 
-def excursion_term(q, basis, polyline: Polyline, space, pair, k, segment=None):
+def excursion_term(q, basis, polyline: Polyline, space, pair, k, order=None, segment=None):
     """How far the curve of position ``q`` strays from the data polyline: the arc-length
-    mean excess (:func:`~swarmcurves_jax.excursions.excursion`), the swarm's; or, given
-    each sample's nearest ``segment`` (:func:`polish_search`), each sample's excess, arc
-    length and fold (:func:`~swarmcurves_jax.excursions.sample_folds`), the polish's
-    residuals."""
+    mean excess (:func:`~swarmcurves_jax.excursions.excursion`) plus, given ``order`` (the
+    points' feet, mask, count and mean distance, the data's scatter), how far it runs back
+    against the data's order (:func:`~swarmcurves_jax.excursions.runs_back`), the
+    swarm's; or, given each sample's nearest ``segment`` (:func:`polish_search`), each
+    sample's excess, arc length and fold (:func:`~swarmcurves_jax.excursions.sample_folds`),
+    the polish's residuals."""
     basis = space.basis(q, pair, k, basis)
     samples, tangents = curve_samples(*geometry(q, space), basis)
     if segment is not None:
         return sample_excursions(samples, tangents, basis, polyline, segment)
-    return excursion(samples, tangents, basis, polyline)
+    strays = excursion(samples, tangents, basis, polyline)
+    if order is None:
+        return strays
+    return strays + runs_back(*order, tangents, basis, space.closed)
 
 
 def polish_search(q, basis, points, polyline: Polyline, space, pair, k):

@@ -67,7 +67,9 @@ def polish_program(
                 is slow curve, and its share of the arc would hide it)."""
                 foot, segment, own = found
                 near = distances(q, basis, points, space, pair, k, foot, gather=True) * mask
-                excess, arc, fold = excursion_term(q, basis, polyline, space, pair, k, segment)
+                excess, arc, fold = excursion_term(
+                    q, basis, polyline, space, pair, k, segment=segment
+                )
                 share = jax.lax.stop_gradient(arc * (count / jnp.maximum(jnp.sum(arc), 1e-30)))
                 real = arc > 0
                 even = count / jnp.maximum(jnp.sum(real), 1)

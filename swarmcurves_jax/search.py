@@ -15,6 +15,7 @@ import jax.numpy as jnp
 
 from . import pso
 from .excursions import data_segments
+from .fitness import kept
 from .objective import (
     CPU_COMPILER_OPTIONS,
     by_degree,
@@ -99,19 +100,30 @@ def swarm_program(
             """The group's fitness (P,) and feet.  A polygon's search is its exact distance,
             run inside each evaluation (no Newton steps).  Otherwise the search runs in a
             branch of its own (every ``search_every`` iterations, or every iteration where
-            :func:`~swarmcurves_jax.objective.search_apart`), so that its result is stored once, not recomputed by
-            each reader (XLA:CPU fuses cheap producers into each); else it is fused."""
+            :func:`~swarmcurves_jax.objective.search_apart`), so that its result is stored
+            once, not recomputed by each reader (XLA:CPU fuses cheap producers into each);
+            else it is fused, behind a barrier.  Its feet also give the order in which the
+            curve passes the points (:func:`~swarmcurves_jax.excursions.runs_back`)."""
 
             def mean(q, foot, parts=1):  # a bucket length is a multiple of 16: 2 parts fit
                 def at(cut):
                     found = None if foot is None else foot[cut]
                     return distances(q, basis, points[cut], space, pair, k, found, search_every > 1)
 
-                strays = excursion_term(q, basis, polyline, space, pair, k)
-                return masked_mean(at, mask, count, parts) + strays
+                # read twice, so behind the barrier: else XLA:CPU fuses the mean into each
+                # reader, rounding it one way in one program and another in another
+                near = kept(masked_mean(at, mask, count, parts))
+                order = None if foot is None else (foot, mask, count, near, polyline.scatter)
+                return near + excursion_term(q, basis, polyline, space, pair, k, order)
 
-            if k == 1 or (search_every == 1 and not search_apart(space)):
+            if k == 1:
                 return jax.vmap(lambda q: mean(q, None))(positions), feet
+            if search_every == 1 and not search_apart(space):
+
+                def fused(q):
+                    return mean(q, kept(foot_starts(q, basis, points, space, pair, k)))
+
+                return jax.vmap(fused)(positions), feet
 
             def searched():
                 return jax.vmap(lambda q: foot_starts(q, basis, points, space, pair, k))(positions)

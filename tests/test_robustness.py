@@ -184,14 +184,16 @@ def test_reversed_points_fit_as_well_and_run_the_same_way():
         rev = fit(pts[::-1], cps=5, closed=closed, iterations=600)
         assert rev.best.error == pytest.approx(fwd.best.error, rel=1e-9)  # by construction
         for res, data in ((fwd, pts), (rev, pts[::-1])):
-            # the foot points of the data advance with the data's order
+            # most of the data's foot points advance with the data's order (the closed
+            # points cross themselves, and a 5-point curve that does not can follow only
+            # part of them in order: the sum of the steps can go either way)
             curve = res.best
             samples = curve.evaluate(np.linspace(0, 1, 400, endpoint=not closed))
             nearest = np.argmin(np.linalg.norm(data[:, None] - samples[None], axis=2), axis=1)
             steps = np.diff(nearest)
             if closed:
                 steps = (steps + 200) % 400 - 200
-            assert steps.sum() > 0
+            assert np.sum(np.sign(steps)) > 0
 
 
 def test_large_input_runs_with_bounded_fitness_points():
