@@ -100,10 +100,10 @@ def test_refinement_does_not_overfit_noise():
     it from chasing the noise: measured on 27 cases (f1, f4, a random cubic; 3 seeds; 6,
     8, 11 cp) the clean error ratio is 0.987 on average, worse in 2 (at most +9 %);
     without it 1.03 on average, up to +80 %.  Where the least-squares seed or the classic
-    fit is reported instead (here f4 at 8 with noise seeds 0 and 1), it is the closer to
-    the noisy data by the mean or the worst gap both ways, which on such noise need not be
-    the nearer to the clean curve: the swarm's curve, which no longer folds along the
-    noise, is the nearer there (0.0111 and 0.0136 against 0.0124 and 0.0178)."""
+    fit is reported instead (here f4 at 8 with noise seed 1), it is the closer to the noisy
+    data by the mean or the worst gap both ways, which on such noise need not be the nearer
+    to the clean curve: the swarm's curve, which no longer folds along the noise, is the
+    nearer there (0.0156 against the seed's 0.0178)."""
     clean = analytic_points("f4")
     clean_n, center, scale = normalise(clean)
     dense_n = (analytic_points("f4", 5000) - center) / scale
