@@ -190,8 +190,6 @@ def own_segments(segment, foot, mask, closed: bool) -> jax.Array:
     return gap <= 2
 
 
-#: How much longer than the data's chord the curve may run between two consecutive
-#: points' feet before it pays for the rest.
 def runs_back(foot, mask, count, near, scatter, tangents, basis: SpanBasis, closed: bool):
     """How far, per real point, the curve runs back against the data's order: the arc
     length from each point's foot (``foot`` (N,), in samples; ``mask`` 1 on the ``count``

@@ -86,7 +86,7 @@ def _starts(points, closed, even=True):
     return starts
 
 
-def _polynomial_seed(points, n, k, closed, ends, rounds=20, t=None, even=True):
+def _polynomial_seed(points, n, k, closed, ends, rounds=20, t=None, even=True, data=None):
     """(control points, mean distance bound) of :func:`least_squares_ctrl`, and the
     control points of its first start, chord lengths (the classic fit)."""
     if t is None:
@@ -94,7 +94,7 @@ def _polynomial_seed(points, n, k, closed, ends, rounds=20, t=None, even=True):
     else:
         dense = design_matrix(_seed_grid(closed), t, k, closed=closed)
     best = chord = None
-    data = (data_polyline(points, closed), crossings(points, closed))
+    data = _data_shape(points, closed) if data is None else data
     unique = len(points) > n  # else many curves pass through every point
     for u in _parameterisations(points, closed, dense, ends, even):
         fit = _corrected(design_matrix(u, t, k, closed=closed), dense, points, ends, rounds)
@@ -105,6 +105,12 @@ def _polynomial_seed(points, n, k, closed, ends, rounds=20, t=None, even=True):
         if best is None or rank < best[2]:  # a tie keeps the earlier start
             best = (*fit, rank)
     return best[0], best[1], chord
+
+
+def _data_shape(points, closed):
+    """``(polyline, crossings)`` of the data, which :func:`_rank` weighs every seed
+    against: made once per call (:func:`seed_positions`), not once per swarm."""
+    return data_polyline(points, closed), crossings(points, closed)
 
 
 #: How much farther from the data a seed counts for each time its curve crosses itself
@@ -208,10 +214,10 @@ def least_squares_nurbs(points, n, k, closed, ends=None, t=None):
     return _nurbs_seed(points, n, k, closed, ends, t)[:2]
 
 
-def _nurbs_seed(points, n, k, closed, ends, t):
+def _nurbs_seed(points, n, k, closed, ends, t, data=None):
     """(control points, weights) of :func:`least_squares_nurbs`, and the control points
     of the polynomial seed's chord-length start."""
-    ctrl, err, chord = _polynomial_seed(points, n, k, closed, ends, t=t)  # t None: cached grid
+    ctrl, err, chord = _polynomial_seed(points, n, k, closed, ends, t=t, data=data)
     t = make_knots(n, k, closed) if t is None else t
     best = (ctrl, np.ones(n), err)
     for u in _starts(points, closed):
@@ -298,6 +304,8 @@ def seed_positions(pairs, space: Layout, norm_pts, closed, ends, dtype) -> np.nd
     seed is the start nearest the points on average, and where the fit has too few
     control points for the shape the classic fit can leave the smaller gap."""
 
+    data = _data_shape(norm_pts, closed)
+
     def one(pair):
         k, n = pair
         row, t = np.zeros(space.size), None
@@ -309,10 +317,10 @@ def seed_positions(pairs, space: Layout, norm_pts, closed, ends, dtype) -> np.nd
             t = knot_vector(row, k, n, space)
         classic = row.copy()
         if space.rational:
-            ctrl, weights, chord = _nurbs_seed(norm_pts, n, k, closed, ends, t)
+            ctrl, weights, chord = _nurbs_seed(norm_pts, n, k, closed, ends, t, data)
             row[space.num_ctrl : space.num_ctrl + n] = np.log(weights)
         else:
-            ctrl, _, chord = _polynomial_seed(norm_pts, n, k, closed, ends, t=t)
+            ctrl, _, chord = _polynomial_seed(norm_pts, n, k, closed, ends, t=t, data=data)
         row[: n * space.dim] = ctrl.ravel()
         classic[: n * space.dim] = chord.ravel()
         return row, classic
