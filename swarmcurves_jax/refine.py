@@ -24,7 +24,6 @@ from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import optax
 
 from .span_basis import float32_matmul
 
@@ -206,8 +205,12 @@ def lbfgs(
     """optax L-BFGS on the mean distance; same contract as :func:`levenberg_marquardt`.
 
     Frozen coordinates are held by evaluating the loss at ``where(free, x, x0)``, bounds by
-    clipping there, so their gradient is zero and L-BFGS never moves them.
+    clipping there, so their gradient is zero and L-BFGS never moves them.  optax is
+    imported here, by the one method that uses it: importing it took 40-50 ms of every
+    process's import of this package.
     """
+    import optax
+
     residuals, search, free, lower, upper, holdout, valid, penalty = problem
     train, score = _scores(holdout, valid, penalty)
     mean = _mean(valid)
