@@ -206,7 +206,7 @@ def lbfgs(
 
     Frozen coordinates are held by evaluating the loss at ``where(free, x, x0)``, bounds by
     clipping there, so their gradient is zero and L-BFGS never moves them.  optax is
-    imported here, by the one method that uses it: importing it took 40-50 ms of every
+    imported here, by the one method that uses it: importing it took 75 ms of every
     process's import of this package.
     """
     import optax
