@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from .fitness import excess2_at, min_excess2
-from .span_basis import PRECISION, SpanBasis
+from .span_basis import SpanBasis, float32_sum
 
 __all__ = [
     "ALLOWANCE_BASE",
@@ -110,7 +110,7 @@ def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
     # the data's directions at each segment: its own and its two neighbours' either side
     ahead = [unit[before[before]], unit[before], unit, unit[after], unit[after[after]]]
     ahead = jnp.stack(ahead, axis=1)
-    noise = _total(jnp.where(idx < segments, rough, 0.0)) * (1.0 / jnp.maximum(segments, 1))
+    noise = float32_sum(jnp.where(idx < segments, rough, 0.0)) * (1.0 / jnp.maximum(segments, 1))
     return Polyline(start + half, half, allowance2, ahead, noise.astype(points.dtype))
 
 
@@ -190,13 +190,13 @@ def own_segments(segment, foot, mask, closed: bool) -> jax.Array:
     return gap <= 2
 
 
-def runs_back(foot, mask, count, near, scatter, tangents, basis: SpanBasis, closed: bool):
+def runs_back(foot, mask, count, near, scatter, arc, basis: SpanBasis, closed: bool):
     """How far, per real point, the curve runs back against the data's order: the arc
     length from each point's foot (``foot`` (N,), in samples; ``mask`` 1 on the ``count``
     real points) back to the next point's beyond a sample and twice the points' mean
     distance ``near`` (around a closed curve, the shorter way round; the samples taken as
-    equally long), in proportion to the data's ``scatter`` (:class:`Polyline`) up to
-    ``near``.
+    equally long, their mean of ``arc``, each sample's (:func:`sample_excursions`)), in
+    proportion to the data's ``scatter`` (:class:`Polyline`) up to ``near``.
 
     A curve that folds back and forth inside the band of noisy data passes nearer its
     points than one that follows them (100 points along a line, noise about their
@@ -212,28 +212,25 @@ def runs_back(foot, mask, count, near, scatter, tangents, basis: SpanBasis, clos
     idx = jnp.arange(foot.shape[0])
     last = count.astype(jnp.int32) - 1
     m = (basis.per_span * basis.num_spans).astype(foot.dtype)
-    real = jnp.arange(len(tangents)) < m
-    spacing = 2.0 * _total(jnp.sqrt(jnp.sum(tangents * tangents, axis=1)) * real) * (1.0 / m)
+    spacing = 2.0 * float32_sum(arc) * (1.0 / m)
     step = jnp.where(idx == last, foot[0], jnp.roll(foot, -1)) - foot
     if closed:
         step = step - m * jnp.round(step * (1.0 / m))
     pairs = mask * ((idx <= last) if closed else (idx < last))
     back = jnp.maximum(-step * spacing - spacing - 2.0 * near, 0.0)
     noisy = jnp.minimum(scatter * (1.0 / jnp.maximum(near, 1e-30)), 1.0)
-    return noisy * _total(back * pairs) * (1.0 / count)
+    return noisy * float32_sum(back * pairs) * (1.0 / count)
 
 
-def _total(a: jax.Array) -> jax.Array:
-    """``sum(a)`` as a product with ones, as :func:`~.objective.masked_mean` takes it (and
-    divisions here are products with reciprocals, as there): XLA:CPU rewrites either one
-    way in one program and another in another, and the swarms dealt over several devices
-    would differ from one program's in the last bit."""
-    return jnp.dot(a, jnp.ones_like(a), precision=PRECISION)
-
-
-def excursion(samples, tangents, basis: SpanBasis, polyline: Polyline) -> jax.Array:
+def excursion(
+    samples, tangents, basis: SpanBasis, polyline: Polyline, order=None, closed: bool = False
+) -> jax.Array:
     """The arc-length mean of :func:`sample_excursions`: the swarm's penalty for a curve
     that leaves the data between or beyond the points, which the mean point-to-curve
-    distance cannot see."""
+    distance cannot see; given ``order`` (the points' feet, mask, count and mean
+    distance, the data's scatter), plus :func:`runs_back` from the same samples' arc."""
     excess, arc = sample_excursions(samples, tangents, basis, polyline)
-    return jnp.sum(excess * arc) / jnp.maximum(jnp.sum(arc), 1e-30)
+    strays = jnp.sum(excess * arc) / jnp.maximum(jnp.sum(arc), 1e-30)
+    if order is None:
+        return strays
+    return strays + runs_back(*order, arc, basis, closed)

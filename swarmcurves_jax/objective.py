@@ -16,10 +16,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import PartitionSpec as P
 
-from .excursions import Polyline, excursion, runs_back, sample_excursions
+from .excursions import Polyline, excursion, sample_excursions
 from .fitness import dense_starts, foot_samples, nearest_segments, point_distances
 from .layout import Layout, geometry
-from .span_basis import PRECISION, SpanBasis, curve_samples, make_span_basis
+from .span_basis import SpanBasis, curve_samples, float32_sum, make_span_basis
 
 __all__ = [
     "CPU_COMPILER_OPTIONS",
@@ -86,10 +86,7 @@ def excursion_term(q, basis, polyline: Polyline, space, pair, k, order=None, seg
     samples, tangents = curve_samples(*geometry(q, space), basis)
     if segment is not None:
         return sample_excursions(samples, tangents, basis, polyline, segment)
-    strays = excursion(samples, tangents, basis, polyline)
-    if order is None:
-        return strays
-    return strays + runs_back(*order, tangents, basis, space.closed)
+    return excursion(samples, tangents, basis, polyline, order, space.closed)
 
 
 def polish_search(q, basis, points, polyline: Polyline, space, pair, k):
@@ -148,15 +145,11 @@ def masked_mean(distances, mask, count, parts: int = 1):
     """Mean of ``distances(cut)`` over the real points: the padding (``mask`` 0) adds
     nothing.  The points are cut into ``parts`` equal slices whose distances are summed
     elementwise, so that each loop trip runs ``parts`` independent chains (:func:`paired`).
-    The sum is a product with ones: XLA:CPU rewrites a sum of more than 32 values as a
-    pass of partial sums over the stored distances, which took longer than the product
-    (measured on W1, warm, interleaved in one process: 3.05 against 3.10 s).
-    Times the reciprocal, not ``/ count``: see
-    :func:`swarmcurves_jax.fitness.span_and_start`."""
+    The sum is :func:`~swarmcurves_jax.span_basis.float32_sum`.  Times the reciprocal,
+    not ``/ count``: see :func:`swarmcurves_jax.fitness.span_and_start`."""
     size = mask.shape[0] // parts
     d = [distances(c) * mask[c] for c in (slice(i * size, (i + 1) * size) for i in range(parts))]
-    total = sum(d[1:], d[0])
-    return jnp.dot(total, jnp.ones_like(total), precision=PRECISION) * (1.0 / count)
+    return float32_sum(sum(d[1:], d[0])) * (1.0 / count)
 
 
 def over_curves(fn, per_curve, shared, mesh, batch, out_like=None):
