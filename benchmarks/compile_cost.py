@@ -1,0 +1,92 @@
+"""What each program of one call costs to make: its trace, lowering and XLA compilation,
+each taken afresh several times in one process, the least of them reported.
+
+    python benchmarks/compile_cost.py [--call "fit(f4)"] [--reps 3] [--iterations 50]
+
+The call (one of ``benchmarks/first_answer.py``'s, or ``W1``) runs once with the
+compilation cache off, and every program it makes (the initial draws, the swarm, the
+polish) is kept with its arguments; each is then traced, lowered and compiled ``--reps``
+times, JAX's in-memory caches cleared before each.  Per program: the least wall time of
+each stage, the compilation's CPU time (XLA compiles on every core), and the size of the
+lowered program (lines of StableHLO).  A fresh process's compile events vary by 15 % from
+run to run on a busy 2-core machine; the least of a few repeats in one process, after
+the imports and the host's first work, is the steadier gauge for a change to a program.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+
+def capture(call_name: str, iterations: int) -> dict:
+    """Run the call once; every program it made, by name: ``(jitted, args, static)``."""
+    from first_answer import _call
+
+    from swarmcurves_jax import compile_cache, launch
+
+    programs = {}
+    program = compile_cache.program
+
+    def keep(jitted, options, *args, compile_now=False, **static):
+        programs.setdefault(jitted.__name__, (jitted, args, static))
+        return program(jitted, options, *args, compile_now=compile_now, **static)
+
+    draws = launch.initial_draws
+
+    def keep_draws(*args, **static):
+        programs.setdefault("initial_draws", (draws, args, static))
+        return draws(*args, **static)
+
+    launch.compile_cache.program, launch.initial_draws = keep, keep_draws
+    try:
+        _call(call_name, iterations)()
+    finally:
+        launch.compile_cache.program, launch.initial_draws = program, draws
+    return programs
+
+
+def stages(jitted, args, static) -> dict:
+    """One trace, lowering and compilation of ``jitted`` from scratch: wall seconds of
+    each, the compilation's CPU seconds and the lowered program's lines."""
+    import jax
+
+    jax.clear_caches()
+    t0 = time.perf_counter()
+    traced = jitted.trace(*args, **static)
+    t1 = time.perf_counter()
+    lowered = traced.lower()
+    t2, c2 = time.perf_counter(), time.process_time()
+    lowered.compile()
+    t3, c3 = time.perf_counter(), time.process_time()
+    lines = lowered.as_text().count("\n")
+    return {"trace": t1 - t0, "lower": t2 - t1, "compile": t3 - t2, "cpu": c3 - c2, "lines": lines}
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--call", default="fit(f4)")
+    parser.add_argument("--reps", type=int, default=3)
+    parser.add_argument("--iterations", type=int, default=50)
+    args = parser.parse_args(argv)
+    if args.reps < 1:
+        parser.error(f"--reps must be at least 1, got {args.reps}")
+    os.environ["SWARMCURVES_CACHE_DIR"] = "off"  # before the package is imported
+
+    programs = capture(args.call, args.iterations)
+    print(f"{args.call}: the least of {args.reps} (median in brackets), {os.cpu_count()} cores")
+    print("| program | trace (s) | lower (s) | compile (s) | compile (CPU-s) | StableHLO lines |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for name, (jitted, call_args, static) in programs.items():
+        runs = [stages(jitted, call_args, static) for _ in range(args.reps)]
+        cells = [
+            f"{min(r[k] for r in runs):.2f} ({statistics.median(r[k] for r in runs):.2f})"
+            for k in ("trace", "lower", "compile", "cpu")
+        ]
+        print(f"| {name} | {' | '.join(cells)} | {runs[-1]['lines']} |")
+
+
+if __name__ == "__main__":
+    main()
