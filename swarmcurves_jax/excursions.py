@@ -5,10 +5,8 @@ onto; a loop or a spike between two points costs it nothing.  The swarm and the 
 add the arc-length mean of how far each curve sample lies beyond an allowance around the
 data polyline (:func:`excursion`), so a curve that leaves the data is worse.  The polish
 also pays for a fold, the curve doubling back on itself inside the allowance
-(:func:`sample_folds`), for a stall, the curve all but stopping between its samples
-(:func:`sample_stalls`), and for an open curve's end that hooks back against the data
-(:func:`end_reversals`): lowering the data error those ways is its local moves' shortcut,
-not the swarm's.
+(:func:`sample_folds`): lowering the data error that way is its local moves' shortcut, not
+the swarm's.
 """
 
 from __future__ import annotations
@@ -27,10 +25,6 @@ __all__ = [
     "data_segments",
     "sample_excursions",
     "sample_folds",
-    "STALL_SPEED",
-    "sample_stalls",
-    "end_headings",
-    "end_reversals",
     "own_segments",
     "excursion",
     "runs_back",
@@ -180,57 +174,6 @@ def sample_folds(tangents, over, polyline: Polyline, segment) -> jax.Array:
     a2 = jnp.maximum(polyline.allowance2[segment], 0.0)
     room = jnp.sqrt(a2) - jnp.sqrt(jnp.maximum(over + a2, 0.0) + 1e-30)
     return back * jnp.maximum(room, 0.0)
-
-
-#: The speed, as a fraction of the curve's mean, under which a polished curve stalls.
-#: Measured on Table 1's fits (``fit(analytic_points(f), cps=range(4, 20), seed=0)`` for
-#: f1-f5) against the same program with the rows present and never charged (the polish's
-#: rounding alone moves some fits): 0.05 lowered f1's reported mean deviation 0.85x and
-#: f3's 0.88x (geometric means; f1 at 15 and 16 0.38x, f3 at 13 and 15 0.35x), f2, f4 and
-#: f5 within 0.1 %, the 52 outline fits 0.996x; 0.1 and 0.2 did as well on f1 but moved
-#: f3's at 10 and 12 into curves 4-5x farther from the data.
-STALL_SPEED = 0.05
-
-
-def sample_stalls(arc: jax.Array, real: jax.Array) -> jax.Array:
-    """How far each curve sample's speed ``arc`` (M,) falls below :data:`STALL_SPEED`
-    times the mean over the ``real`` samples (M,), in the same units (M,).
-
-    A B-spline on fixed knots that all but stops turns on the spot, in a cusp or a hook
-    too small for any distance to see: the polish reached for such stalls to spend a
-    span's control points elsewhere (Table 1's f1 at 13-16 control points: at 13 a cusp at
-    x = 0.84 in the flat tail, its speed down to 4e-7), and the host then rejected the
-    polished curve for its turning.  The mean is a constant to the derivative: only the
-    slow samples are pushed."""
-    typical = jax.lax.stop_gradient(jnp.sum(arc) / jnp.maximum(jnp.sum(real), 1))
-    return jnp.maximum(STALL_SPEED * typical - arc, 0.0) * real
-
-
-def end_headings(points: jax.Array, count: jax.Array) -> jax.Array:
-    """The direction the data run in at either end of an open curve, (2, D) unit vectors,
-    out of the first and into the last of ``count`` real points (the rest padding): over a
-    twentieth of the points, at least one chord, so that noise at an end does not turn it."""
-    last = count.astype(jnp.int32) - 1
-    reach = jnp.maximum(last // 20, 1)
-    heading = jnp.stack([points[reach] - points[0], points[last] - points[last - reach]])
-    return heading / jnp.maximum(jnp.linalg.norm(heading, axis=1, keepdims=True), 1e-30)
-
-
-def end_reversals(ctrl: jax.Array, n: jax.Array, heading: jax.Array) -> jax.Array:
-    """How far each end of an open curve with control points ``ctrl[:n]`` runs back
-    against the data's ``heading`` (:func:`end_headings`), (2,): its end tangent's
-    direction (``P1 - P0`` and ``P[n-1] - P[n-2]`` on clamped knots) against the data's,
-    zero unless it runs back.
-
-    The polish on a curve with more control points than its data need could hook an end:
-    the curve runs a few hundred-thousandths past its end point and turns back to it, half
-    a turn that no distance sees and the host rejects for its turning (Table 1's f1 at 18
-    control points in ``fit(analytic_points("f1"), cps=range(4, 20), seed=0)``, then
-    reported as its least-squares seed, 2.7x farther from the data than the polished curve
-    reported with these rows; of the outlines, Goldi_path9 at 16 then reported its seed
-    too, 1.55x farther than its polished curve now)."""
-    tangents = jnp.stack([ctrl[1] - ctrl[0], ctrl[n - 1] - ctrl[n - 2]])
-    return jnp.maximum(-jnp.sum(tangents * heading, axis=1), 0.0)
 
 
 def own_segments(segment, foot, mask, closed: bool) -> jax.Array:

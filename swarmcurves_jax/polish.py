@@ -2,10 +2,8 @@
 
 After the search, :func:`polish_program` runs Levenberg–Marquardt (or L-BFGS,
 :mod:`swarmcurves_jax.refine`) from a few starts per swarm on the same objective as the
-swarm's, the data's distances and the curve's excursions from the data polyline, and
-fold, stall and end-hook terms (a fold inside the allowance, a curve that all but stops and
-turns on the spot, an open curve's end that runs back against the data: each a local
-method's shortcut to a lower data error).
+swarm's, the data's distances and the curve's excursions from the data polyline, and a
+fold term (a fold inside the allowance is a local method's shortcut to a lower data error).
 """
 
 from __future__ import annotations
@@ -16,13 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from . import refine as local
-from .excursions import (
-    data_segments,
-    end_headings,
-    end_reversals,
-    own_segments,
-    sample_stalls,
-)
+from .excursions import data_segments, own_segments
 from .layout import Layout
 from .objective import (
     CPU_COMPILER_OPTIONS,
@@ -66,16 +58,13 @@ def polish_program(
         holdout = (jnp.arange(points.shape[0]) % local.HOLDOUT_EVERY == 2) * mask
         polyline = data_segments(points, mask, space.closed)
         count = jnp.sum(mask)
-        ends = 0 if space.closed else 2  # end-hook rows: an open curve's two ends
-        heading = None if space.closed else end_headings(points, count)
 
         def one_swarm(pair, state, box, seed, basis, k):
             def residuals(q, found):
                 """The points' distances, then each curve sample's excursion weighted by
                 its share of the arc (times the point count: their sum per point is the
-                swarm's excursion term), then each sample's fold and stall weighted evenly
-                (both are slow curve, and their share of the arc would hide them), then an
-                open curve's end hooks, weighted as the point count."""
+                swarm's excursion term), then each sample's fold weighted evenly (a fold
+                is slow curve, and its share of the arc would hide it)."""
                 foot, segment, own = found
                 near = distances(q, basis, points, space, pair, k, foot, gather=True) * mask
                 excess, arc, fold = excursion_term(
@@ -84,11 +73,7 @@ def polish_program(
                 share = jax.lax.stop_gradient(arc * (count / jnp.maximum(jnp.sum(arc), 1e-30)))
                 real = arc > 0
                 even = count / jnp.maximum(jnp.sum(real), 1)
-                slow = sample_stalls(arc, real)
-                rows = [near, excess * share, fold * even * (own * real), slow * even]
-                if ends:
-                    rows.append(end_reversals(space.split(q)[0], pair[1], heading) * count)
-                return jnp.concatenate(rows)
+                return jnp.concatenate([near, excess * share, fold * even * (own * real)])
 
             def search(q):
                 """Each point's foot, each sample's segment and whether it is its own:
@@ -102,7 +87,7 @@ def polish_program(
             starts = [state.best_position[None], state.pbest_position[top]]
             starts = jnp.concatenate(starts + ([seed[None]] if seeded else []))
             polish = local.levenberg_marquardt if method == "lm" else local.lbfgs
-            extra = jnp.zeros(3 * basis.sample_value.shape[-2] + ends, mask.dtype)
+            extra = jnp.zeros(2 * basis.sample_value.shape[-2], mask.dtype)
             problem = local.Problem(
                 residuals,
                 search,

@@ -12,15 +12,7 @@ from hypothesis import strategies as st
 
 from swarmcurves_jax import fit, make_knots, normalise
 from swarmcurves_jax.datasets import analytic_points, normal_noise, random_bspline_points
-from swarmcurves_jax.excursions import (
-    data_segments,
-    end_headings,
-    end_reversals,
-    own_segments,
-    runs_back,
-    sample_folds,
-    sample_stalls,
-)
+from swarmcurves_jax.excursions import data_segments, own_segments, runs_back, sample_folds
 from swarmcurves_jax.fitness import excess2_at
 from swarmcurves_jax.measures import Deviations, crossings, deviations, turning
 from swarmcurves_jax.projection import project_points
@@ -123,55 +115,6 @@ def test_the_polish_leaves_no_spike_or_fold_on_table_1(name, n):
     assert c.mean_deviation < 3 * c.error + 1e-3, c
     assert c.info["refined"], c
     assert _turning(c, points) < turning(points, False) + 0.5 * np.pi, c
-
-
-def test_the_polish_does_not_stall_into_a_cusp_on_f1():
-    """The paper's f1 at 13 control points: the polish stopped the curve dead in the flat
-    tail (its speed down to 4e-7 at x = 0.84), turning on the spot in a cusp too small for
-    any distance to see, 3.2 radians more than the data; the host rejected it and
-    reported the least-squares seed (mean deviation 2.2e-4).  With the stall term the
-    polished curve is kept, half as far from the data, and turns as the data do."""
-    points = analytic_points("f1")
-    c = fit(points, cps=[13], seed=0).solutions[0]
-    assert c.info["refined"], c
-    assert c.mean_deviation < 1.5e-4, c
-    assert _turning(c, points) < turning(points, False) + 0.5, c
-
-
-def test_a_sample_slower_than_a_twentieth_of_the_mean_costs_the_speed_it_lacks():
-    """Speeds 1, 1, 1 and 0.01 (and a padded sample): the mean over the real samples is
-    0.7525, so the slow one lacks 0.05 x 0.7525 - 0.01; only it is pushed (the mean is a
-    constant to the derivative), the others cost nothing."""
-    arc = jnp.asarray([1.0, 1.0, 1.0, 0.01, 0.0])
-    real = arc > 0
-    stalls = np.asarray(sample_stalls(arc, real))
-    np.testing.assert_allclose(stalls, [0.0, 0.0, 0.0, 0.05 * 0.7525 - 0.01, 0.0], atol=1e-7)
-    grad = np.asarray(jax.grad(lambda a: jnp.sum(sample_stalls(a, real)))(arc))
-    np.testing.assert_array_equal(grad, [0.0, 0.0, 0.0, -1.0, 0.0])
-
-
-def test_the_polish_does_not_hook_an_end_of_f1():
-    """The paper's f1 fitted at 4-19 control points: at 18 the polish ran the curve past
-    its end and back (half a turn no distance sees), the host rejected it and reported the
-    least-squares seed (mean deviation 2.0e-4).  With the end-hook rows the polished curve
-    is kept, 2.7 times closer, and turns as the data do."""
-    points = analytic_points("f1")
-    c = fit(points, cps=range(4, 20), seed=0)[3, 18]
-    assert c.info["refined"], c
-    assert c.mean_deviation < 1e-4, c
-    assert _turning(c, points) < turning(points, False) + 0.5, c
-
-
-def test_an_end_running_back_against_the_data_costs_its_tangent_along_the_heading():
-    """Data along +x (and a padded row past them): both ends head +x.  An end tangent
-    with a backward x-part of 0.5 costs 0.5; one along the data, or across them, nothing."""
-    points = jnp.asarray([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0], [9.0, 9.0]])
-    heading = end_headings(points, jnp.asarray(4.0))
-    np.testing.assert_allclose(np.asarray(heading), [[1.0, 0.0], [1.0, 0.0]], atol=1e-7)
-    hooked = jnp.asarray([[0.0, 0.0], [-0.5, 0.2], [2.0, 1.0], [3.0, 0.0], [0.0, 0.0]])
-    np.testing.assert_allclose(np.asarray(end_reversals(hooked, 4, heading)), [0.5, 0.0])
-    across = jnp.asarray([[0.0, 0.0], [0.0, 0.3], [3.0, 0.0]])
-    np.testing.assert_array_equal(np.asarray(end_reversals(across, 3, heading)), [0.0, 0.0])
 
 
 def test_too_few_control_points_report_the_seed_rather_than_a_loop():
