@@ -4,8 +4,9 @@ each taken afresh several times in one process, the least of them reported.
     python benchmarks/compile_cost.py [--call "fit(f4)"] [--reps 3] [--iterations 50]
 
 The call (one of ``benchmarks/first_answer.py``'s, or ``W1``) runs once with the
-compilation cache off, and every program it makes (the initial draws, the swarm, the
-polish) is kept with its arguments; each is then traced, lowered and compiled ``--reps``
+compilation cache off, and the first program of each kind it makes (the initial draws,
+the swarm, the polish; ``fit_many`` makes one of each per bucket) is kept with its
+arguments; each is then traced, lowered and compiled ``--reps``
 times, JAX's in-memory caches cleared before each.  Per program: the least wall time of
 each stage, the compilation's CPU time (XLA compiles on every core), and the size of the
 lowered program (lines of StableHLO).  A fresh process's compile events vary by 15 % from
@@ -22,7 +23,7 @@ import time
 
 
 def capture(call_name: str, iterations: int) -> dict:
-    """Run the call once; every program it made, by name: ``(jitted, args, static)``."""
+    """Run the call once; the first program of each name it made: ``(jitted, args, static)``."""
     from first_answer import _call
 
     from swarmcurves_jax import compile_cache, launch

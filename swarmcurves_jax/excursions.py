@@ -136,7 +136,8 @@ def sample_excursions(
     segment: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """How far each curve sample strays beyond the data polyline's allowance, (M,), and
-    the arc length it stands for, (M,) (0 on samples that repeat the last); given each
+    half the arc length it stands for, its tangent segment's half vector's length, (M,)
+    (0 on samples that repeat the last; a weight, so the half does not matter); given each
     sample's ``segment``, also its fold (:func:`sample_folds`), (M,).
 
     The excess is ``sqrt(min over segments of max(0, d**2 - a**2))`` (``d``: the
@@ -195,8 +196,9 @@ def runs_back(foot, mask, count, near, scatter, arc, basis: SpanBasis, closed: b
     length from each point's foot (``foot`` (N,), in samples; ``mask`` 1 on the ``count``
     real points) back to the next point's beyond a sample and twice the points' mean
     distance ``near`` (around a closed curve, the shorter way round; the samples taken as
-    equally long, their mean of ``arc``, each sample's (:func:`sample_excursions`)), in
-    proportion to the data's ``scatter`` (:class:`Polyline`) up to ``near``.
+    equally long, twice the mean of ``arc``, half each sample's arc
+    (:func:`sample_excursions`)), in proportion to the data's ``scatter``
+    (:class:`Polyline`) up to ``near``.
 
     A curve that folds back and forth inside the band of noisy data passes nearer its
     points than one that follows them (100 points along a line, noise about their

@@ -404,13 +404,12 @@ def test_a_crossing_alone_hands_the_curve_to_no_farther_candidate(which):
 
 
 def test_a_curve_that_runs_back_against_the_datas_order_pays_the_arc_behind():
-    """Feet in samples, 20 samples of 0.1 arc each (a sample's arc is its tangent's length,
-    half its chord),
-    mean distance 0.05: steps forward cost nothing, nor a step back within a sample and
-    twice the mean distance (0.2 of arc: near-ties of noisy points, far points' feet); a
-    step back of 6 samples costs the 0.4 beyond that, per point, in full where the data's
-    scatter reaches the mean distance, in proportion below it.  Around a closed curve the
-    shorter way counts: passing the seam is a step forward."""
+    """Feet in samples, 20 samples of 0.1 arc each (``arc`` 0.05: a tangent's length, half
+    a sample's chord), mean distance 0.05: steps forward cost nothing, nor a step back
+    within a sample and twice the mean distance (0.2 of arc: near-ties of noisy points, far
+    points' feet); a step back of 6 samples costs the 0.4 beyond that, per point, in full
+    where the data's scatter reaches the mean distance, in proportion below it.  Around a
+    closed curve the shorter way counts: passing the seam is a step forward."""
     basis = SimpleNamespace(per_span=jnp.int32(4), num_spans=jnp.int32(5))
     arc = jnp.full(20, 0.05)  # each sample's |tangent| 0.05: 0.1 a sample
 
