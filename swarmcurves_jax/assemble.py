@@ -133,6 +133,7 @@ def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:
             "max_excursion": dev.max_excursion,
             "rms_excursion": dev.rms_excursion,
             "self_crossings": dev.crossings,
+            "order_gap": dev.order_gap,
         },
     )
 

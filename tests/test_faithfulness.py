@@ -222,21 +222,29 @@ class _Measured(NamedTuple):
     name: str
 
 
-def _measured(name, mean, turns, largest=5e-3, farthest=5e-3, crosses=0):
+def _measured(name, mean, turns, largest=5e-3, farthest=5e-3, crosses=0, gap=0.0):
     """A measured candidate: its mean and largest deviations, its largest data distance
-    (``farthest``), its turning and how often it crosses itself."""
-    deviation = Deviations(largest, mean, 0.0, 0.0, 0.0, turns, crosses)
+    (``farthest``), its turning, how often it crosses itself and its order gap."""
+    deviation = Deviations(largest, mean, 0.0, 0.0, 0.0, turns, crosses, gap)
     return _Measured(deviation, np.r_[0.0, farthest], name)
 
 
 def _select(
-    polished=None, seed=None, turns=5.5, largest=5e-3, classic=None, polished_seed=None, crosses=0
+    polished=None,
+    seed=None,
+    turns=5.5,
+    largest=5e-3,
+    classic=None,
+    polished_seed=None,
+    crosses=0,
+    noise=0.0,
 ):
     """``select`` on stand-ins: the swarm's best has fitness 2e-3, mean deviation 2e-4,
-    largest deviation ``largest``, largest data distance 5e-3, turns ``turns`` rad and
-    crosses itself ``crosses`` times, for data whose polyline turns 6 rad and does not
-    cross itself; ``polished``: (fitness, measured), ``seed``, the ``classic``
-    least-squares fit and the ``polished_seed``: measured."""
+    largest deviation ``largest``, largest data distance 5e-3 (error 2.5e-3), turns
+    ``turns`` rad and crosses itself ``crosses`` times, for data whose polyline turns
+    6 rad, does not cross itself and zig-zags by ``noise``; ``polished``: (fitness,
+    measured), ``seed``, the ``classic`` least-squares fit and the ``polished_seed``:
+    measured."""
     best = Candidate(np.zeros(3), 2e-3, "swarm")
     measured = {id(best): _measured("best", 2e-4, turns, largest, crosses=crosses)}
     other = None
@@ -253,7 +261,8 @@ def _select(
         extra = Candidate(np.zeros(3), None, "polished seed")
         measured[id(extra)] = polished_seed
     pick = lambda c: measured[id(c)]  # noqa: E731
-    return select(best, other, pick, data=DataShape(6.0, 0), fits=fits, polished_seed=extra).name
+    data = DataShape(6.0, 0, noise)
+    return select(best, other, pick, data=data, fits=fits, polished_seed=extra).name
 
 
 @pytest.mark.parametrize(
@@ -274,6 +283,26 @@ def test_a_polished_curve_that_folds_or_opens_a_gap_is_not_kept(polished, kept):
     fitness, mean, turns, largest = polished
     measured = _measured("polished", mean, turns, largest, min(largest, 5e-3))
     assert _select(polished=(fitness, measured)) == kept
+
+
+@pytest.mark.parametrize(
+    "gap, noise, kept",
+    [
+        (0.0, 5e-3, "polished"),  # half the mean, in the data's order
+        (1.2e-3, 5e-3, "polished"),  # in their order 0.48 of its error (2.5e-3) farther
+        (1.3e-3, 5e-3, "best"),  # 0.52 farther: folded across the noise
+        (2.0e-3, 1e-3, "polished"),  # less noise: 0.8 of its error, counted 0.4 of it
+        (3.2e-3, 1e-3, "best"),  # 1.28 of its error, counted 0.4 of it: 0.51
+    ],
+)
+def test_a_polished_curve_nearer_the_points_only_out_of_their_order_is_not_kept(gap, noise, kept):
+    """A polish that halves the mean deviation (1e-4 against the best's 2e-4, see
+    ``_select``) by passing the points out of their order, a Z across a band of noise,
+    is not kept: in their order the points lie, on average, more than half its error
+    (2.5e-3) farther from it (``order_gap``), counted in proportion to the data's
+    scatter against that error, up to all of it."""
+    measured = _measured("polished", 1e-4, 6.0, gap=gap)
+    assert _select(polished=(1e-3, measured), noise=noise) == kept
 
 
 @pytest.mark.parametrize(
@@ -428,16 +457,23 @@ def test_a_curve_that_runs_back_against_the_datas_order_pays_the_arc_behind():
 
 
 NOISY_LINE = np.c_[np.linspace(0.0, 1.0, 100), 0.01 * np.random.default_rng(0).normal(size=100)]
+NOISIER_LINE = np.c_[NOISY_LINE[:, 0], 2.0 * NOISY_LINE[:, 1]]  # the same noise, twice as large
 
 
-def test_noisy_points_along_a_line_are_not_folded_over():
+@pytest.mark.parametrize("points", [NOISY_LINE, NOISIER_LINE], ids=["noise 0.01", "noise 0.02"])
+def test_noisy_points_along_a_line_are_not_folded_over(points):
     """100 points along a line, noise about their spacing, at 5-7 control points: the
     swarm folded the 6 and the 7 back and forth along the band of noise (crossing
     themselves 3 and 2 times, running back 0.85 and 1.0 of the line's length), at a lower
     mean distance than a curve that follows the points.  Paying for the arc its curve runs
     back against the points' order, it follows them: none runs back by more than ten
-    points' spacing (0.01; here under one) or crosses itself more than once."""
-    result = fit(NOISY_LINE, cps=range(5, 8), seed=0)
+    points' spacing (0.01; here under one) or crosses itself more than once.  With twice
+    the noise the polish folded the 6 and the 7 into Zs the line's length (running back
+    1.0 and 0.95 of it), at a lower mean deviation than the swarm's curves (0.0185 against
+    0.0199 at 6), and ``best`` took the folded 6; they pass the points out of their order
+    (``order_gap``: by more than their error beyond the swarm's curve), and none is
+    reported."""
+    result = fit(points, cps=range(5, 8), seed=0)
     for c in result:
         x = c.evaluate(np.linspace(0.0, 1.0, 2001))[:, 0]
         assert np.max(np.maximum.accumulate(x) - x) < 0.1, c.n_ctrl

@@ -2,15 +2,17 @@
 are known in closed form."""
 
 import functools
+import itertools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarmcurves_jax import Curve
+from swarmcurves_jax.datasets import random_bspline_points
 from swarmcurves_jax.excursions import data_segments, excursion
 from swarmcurves_jax.span_basis import curve_samples, make_span_basis
 from swarmcurves_jax.knots import make_knots
@@ -20,6 +22,7 @@ from swarmcurves_jax.measures import (
     deviations,
     excursions,
     median_spacing,
+    order_gap,
     sample_excursions,
 )
 from swarmcurves_jax.projection import distance_to_polyline, project_points
@@ -198,3 +201,76 @@ def test_crossings_of_a_pile_up_are_counted_in_bounded_memory():
     dwell = eight[-1] + np.c_[np.linspace(0, 1e-4, 30_000), np.zeros(30_000)]
     leg = dwell[-1] + np.c_[np.linspace(0, 1, 2000)[1:], np.zeros(1999)]
     assert crossings(np.vstack([eight, dwell, leg]), False) == 1
+
+
+def _segment_distance(p, a, b) -> float:
+    ab = b - a
+    s = np.clip(np.dot(p - a, ab) / max(np.dot(ab, ab), 1e-300), 0.0, 1.0)
+    return float(np.linalg.norm(p - a - s * ab))
+
+
+def _order_gap_by_enumeration(points, verts, closed) -> float:
+    """Every assignment of points to chords in order, tried: the definition of the gap."""
+    chords = len(verts) - 1
+    cost = np.array(
+        [[_segment_distance(p, verts[j], verts[j + 1]) for j in range(chords)] for p in points]
+    )
+    best = np.inf
+    for table in (cost, cost[:, ::-1]):  # either way along the curve
+        rounds = 2 * chords if closed else chords  # closed: at most twice round
+        for seq in itertools.combinations_with_replacement(range(rounds), len(points)):
+            if seq[0] < chords:  # starting in the first round
+                best = min(best, sum(table[i, j % chords] for i, j in enumerate(seq)))
+    return (best - np.sum(np.min(cost, axis=1))) / len(points)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    num=st.integers(1, 5),
+    chords=st.integers(1, 5),
+    closed=st.booleans(),
+    seed=st.integers(0, 10_000),
+)
+def test_the_order_gap_is_the_least_cost_of_passing_the_points_in_order(num, chords, closed, seed):
+    """Random points and polylines (closed: a polygon): the dynamic programme's gap equals
+    the least over every assignment of points to chords in order, tried one by one."""
+    rng = np.random.default_rng(seed)
+    points, verts = rng.uniform(-1, 1, (num, 2)), rng.uniform(-1, 1, (chords + 1, 2))
+    if closed:
+        verts[-1] = verts[0]
+    expected = _order_gap_by_enumeration(points, verts, closed)
+    assert order_gap(points, verts, closed) == pytest.approx(expected, abs=1e-12)
+
+
+@settings(max_examples=12, deadline=None)
+@given(
+    closed=st.booleans(),
+    start=st.integers(0, 119),
+    backwards=st.booleans(),
+    seed=st.integers(0, 10_000),
+)
+def test_a_curve_through_its_points_in_order_has_no_order_gap(closed, start, backwards, seed):
+    """Points of a random cubic in order, a closed one's from any start and either way
+    round: the curve passes them in their order, so nothing is lost by asking it to."""
+    points, ctrl = random_bspline_points(7, 3, closed, num_points=120, seed=seed)
+    t = make_knots(7, 3, closed)
+    samples = curve_polyline(ctrl, np.ones(7), t, 3, closed, median_spacing(points, closed))
+    if closed:
+        points = np.roll(points, -start, axis=0)
+    if backwards:
+        points = points[::-1]
+    assert order_gap(points, samples, closed) < 1e-9
+
+
+def test_a_z_across_noisy_points_along_a_line_pays_the_order_gap():
+    """Points along a line, each 0.05 above or below it in turn; a polygon along the
+    upper row, back, and along the lower row passes through every point (error 0), but
+    in their order it can keep only one row: the other half lie 0.1 from it."""
+    x = np.linspace(0.0, 1.0, 21)
+    points = np.c_[x, np.where(np.arange(21) % 2, -0.05, 0.05)]
+    z = np.array([[0.0, 0.05], [1.0, 0.05], [0.0, -0.05], [1.0, -0.05]])
+    samples = curve_polyline(z, np.ones(4), make_knots(4, 1, False), 1, False, 0.05)
+    assert np.max(distance_to_polyline(points, samples)) < 1e-12
+    assert order_gap(points, samples, False) == pytest.approx(0.1 * 10 / 21, rel=1e-9)
+    line = np.array([[0.0, 0.0], [1.0, 0.0]])
+    assert order_gap(points, line, False) == 0.0
