@@ -251,7 +251,11 @@ def test_the_order_gap_is_the_least_cost_of_passing_the_points_in_order(num, cho
 )
 def test_a_curve_through_its_points_in_order_has_no_order_gap(closed, start, backwards, seed):
     """Points of a random cubic in order, a closed one's from any start and either way
-    round: the curve passes them in their order, so nothing is lost by asking it to."""
+    round: the curve passes them in their order, so nothing is lost by asking it to, but
+    for the chords' own error where the curve crosses itself (a point's nearest chord on
+    the other branch): the chords, thinned to 100,000 point-chord pairs, lie up to 2e-4
+    from the points; the gap 1.3e-6 at most over 400 such curves, where a fold costs a
+    fraction of the curve's size."""
     points, ctrl = random_bspline_points(7, 3, closed, num_points=120, seed=seed)
     t = make_knots(7, 3, closed)
     samples = curve_polyline(ctrl, np.ones(7), t, 3, closed, median_spacing(points, closed))
@@ -259,7 +263,7 @@ def test_a_curve_through_its_points_in_order_has_no_order_gap(closed, start, bac
         points = np.roll(points, -start, axis=0)
     if backwards:
         points = points[::-1]
-    assert order_gap(points, samples, closed) < 1e-9
+    assert order_gap(points, samples, closed) < 1e-5
 
 
 def test_a_z_across_noisy_points_along_a_line_pays_the_order_gap():
