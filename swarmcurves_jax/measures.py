@@ -266,8 +266,8 @@ def order_gap(points, samples, closed: bool, feet=None) -> float:
     A curve that runs back and forth across a band of noisy points passes nearer them than
     one that follows them, so its error and both deviations are the smaller (100 points
     along a line, noise twice their spacing, 6 control points: a Z the line's length, mean
-    deviation 0.0179 against 0.0190 for a curve that follows them), and its gap is as
-    large as its error (0.019 against 0.015).  ``samples``: the curve densely sampled in
+    deviation 0.0179 against 0.0190 for a curve that follows them), and its gap exceeds
+    its error (0.019 against 0.015).  ``samples``: the curve densely sampled in
     order (:func:`curve_polyline`); ``feet``, if given: the points' foot parameters,
     which settle the common case, feet already in order (no alignment needed).
     Otherwise the least sum of point-to-chord distances over the assignments of points
@@ -316,7 +316,7 @@ def _in_order(feet: np.ndarray, closed: bool) -> bool:
 
 def _chord_distances(points: np.ndarray, verts: np.ndarray) -> np.ndarray:
     """Distance from each point to each chord of the polyline ``verts`` (N, M - 1), one
-    coordinate at a time (a third of the time of a (N, M, D) product)."""
+    coordinate at a time (no (N, M, D) temporaries)."""
     a, ab = verts[:-1], np.diff(verts, axis=0)
     inv = 1.0 / np.maximum(np.sum(ab * ab, axis=1), 1e-300)
     rel = [points[:, None, d] - a[None, :, d] for d in range(points.shape[1])]
