@@ -25,7 +25,12 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .projection import curve_derivatives, dense_parameters, distance_to_polyline
+from .projection import (
+    curve_derivatives,
+    dense_parameters,
+    distance_to_polyline,
+    segment_distances,
+)
 
 __all__ = [
     "Deviations",
@@ -280,7 +285,7 @@ def order_gap(points, samples, closed: bool, feet=None) -> float:
     verts = np.asarray(samples, dtype=np.float64)
     stride = -(-(len(verts) - 1) * len(pts) // ORDER_PAIRS)
     verts = np.vstack([verts[:-1:stride], verts[-1:]]) if stride > 1 else verts
-    cost = _chord_distances(pts, verts)
+    cost = segment_distances(pts, verts[:-1], verts[1:])
     free = float(np.sum(np.min(cost, axis=1)))
     ordered = min(_aligned(cost, closed), _aligned(cost[:, ::-1], closed))
     return max(ordered - free, 0.0) / len(pts)
@@ -294,13 +299,10 @@ def scatter(points: np.ndarray, closed: bool) -> float:
     pts = data_polyline(points, closed)
     if closed:
         pts = np.vstack([pts[-2:-1], pts])  # the first point's neighbours: last and second
-    a, b, p = pts[:-2], pts[2:], pts[1:-1]
-    if not len(p):
+    if len(pts) < 3:
         return 0.0
-    ab = b - a
-    along = np.sum((p - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-300)
-    off = p - a - np.clip(along, 0.0, 1.0)[:, None] * ab
-    return float(np.mean(np.linalg.norm(off, axis=1)))
+    own = np.arange(len(pts) - 2)[:, None]  # each point against its neighbours' chord
+    return float(np.mean(segment_distances(pts[1:-1], pts[:-2], pts[2:], own)))
 
 
 def _in_order(feet: np.ndarray, closed: bool) -> bool:
@@ -312,17 +314,6 @@ def _in_order(feet: np.ndarray, closed: bool) -> bool:
         once = abs(abs(np.sum(steps)) - 1.0) < 1e-6
         return bool(once and (np.all(steps >= 0) or np.all(steps <= 0)))
     return bool(np.all(steps >= 0) or np.all(steps <= 0))
-
-
-def _chord_distances(points: np.ndarray, verts: np.ndarray) -> np.ndarray:
-    """Distance from each point to each chord of the polyline ``verts`` (N, M - 1), one
-    coordinate at a time (no (N, M, D) temporaries)."""
-    a, ab = verts[:-1], np.diff(verts, axis=0)
-    inv = 1.0 / np.maximum(np.sum(ab * ab, axis=1), 1e-300)
-    rel = [points[:, None, d] - a[None, :, d] for d in range(points.shape[1])]
-    along = sum(r * ab[:, d] for d, r in enumerate(rel)) * inv
-    np.clip(along, 0.0, 1.0, out=along)
-    return np.sqrt(sum((r - along * ab[:, d]) ** 2 for d, r in enumerate(rel)))
 
 
 def _aligned(cost: np.ndarray, closed: bool) -> float:

@@ -174,6 +174,16 @@ def _rank_chords_at(points, rows, found, chords, top):
     return out, out_d2
 
 
+def segment_distances(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, idx=None):
+    """Distance from each point (N, D) to segments ``idx`` (N, C) of those from ``starts``
+    to ``ends`` (M, D); to every segment, (N, M), if ``idx`` is None."""
+    ab = ends - starts
+    inv = 1.0 / np.maximum(np.sum(ab * ab, axis=1), 1e-300)
+    if idx is None:
+        idx = np.broadcast_to(np.arange(len(ab)), (len(points), len(ab)))
+    return np.sqrt(_chord_d2(points, starts, ab, inv, idx))
+
+
 def distance_to_polyline(points: np.ndarray, vertices: np.ndarray) -> np.ndarray:
     """Exact distance (N,) from every point (N, D) to the polyline through ``vertices``
     (M, D; one vertex: the distance to it), by :func:`_nearest_chords`: the curve -> data
