@@ -134,6 +134,8 @@ def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:
             "rms_excursion": dev.rms_excursion,
             "self_crossings": dev.crossings,
             "order_gap": dev.order_gap,
+            "corner_max_deviation": dev.corner_max,
+            "corner_mean_deviation": dev.corner_mean,
         },
     )
 

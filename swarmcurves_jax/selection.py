@@ -80,7 +80,10 @@ def select(
     polished_seed: Candidate | None = None,
 ) -> Measured:
     """The solution a swarm reports, judged on the host (``measure(candidate)``) by the
-    two-sided measures.
+    two-sided measures, the data's corners between samples allowed for
+    (``corner_mean`` and ``corner_max``, :func:`~.measures.corners`: the data polyline
+    cuts a sharp peak between two samples, and a curve that follows the data up to its
+    tip is not the farther for leaving it).
 
     Its best, or its polished one if that one has the lower fitness, the lower two-sided
     ``mean_deviation`` and the lower product of the two measures
@@ -129,8 +132,8 @@ def _replaces(other: Measured, chosen: Measured, closer: bool, data: DataShape) 
 
 
 def _lower_mean(other: Measured, chosen: Measured) -> bool:
-    """Whether ``other``'s two-sided mean deviation is the lower."""
-    return other.deviation.mean_deviation < _or_inf(chosen.deviation.mean_deviation)
+    """Whether ``other``'s two-sided mean deviation (corners allowed for) is the lower."""
+    return other.deviation.corner_mean < _or_inf(chosen.deviation.corner_mean)
 
 
 def _polished_closer(other: Measured, chosen: Measured) -> bool:
@@ -141,22 +144,20 @@ def _polished_closer(other: Measured, chosen: Measured) -> bool:
 
 
 def _closer_together(other: Measured, chosen: Measured) -> bool:
-    """Whether ``other`` is the closer by both two-sided measures taken together, the
-    product of ``mean_deviation`` and ``max_deviation``: a polish may widen the largest
-    gap only by a smaller factor than it narrows the mean.  A polish that lowers the mean
-    by pulling most of the curve onto the data while a stretch of it drifts away (across
-    a sharp turn between two samples, say) is not reported."""
+    """Whether ``other`` is the closer by both two-sided measures taken together (corners
+    allowed for), the product of the mean and the largest deviation: a polish may widen
+    the largest gap only by a smaller factor than it narrows the mean.  A polish that
+    lowers the mean by pulling most of the curve onto the data while a stretch of it
+    drifts away (across a sharp turn between two samples, say) is not reported."""
     mine, theirs = other.deviation, chosen.deviation
-    return mine.mean_deviation * mine.max_deviation < _or_inf(
-        theirs.mean_deviation * theirs.max_deviation
-    )
+    return mine.corner_mean * mine.corner_max < _or_inf(theirs.corner_mean * theirs.corner_max)
 
 
 def _smaller_gap(other: Measured, chosen: Measured) -> bool:
     """Whether ``other``'s worst gap is the smaller both ways it is measured: a smaller
     largest data distance and no larger largest deviation."""
     nearer = bool(np.max(other.distances) < np.max(chosen.distances))
-    return nearer and other.deviation.max_deviation <= _or_inf(chosen.deviation.max_deviation)
+    return nearer and other.deviation.corner_max <= _or_inf(chosen.deviation.corner_max)
 
 
 def _loops(m: Measured, data: DataShape) -> bool:
@@ -175,7 +176,7 @@ def _untangles(other: Measured, chosen: Measured, data: DataShape) -> bool:
     distance there and leaves the data."""
     if not _loops(chosen, data) or _loops(other, data):
         return False
-    return other.deviation.max_deviation < _or_inf(chosen.deviation.max_deviation)
+    return other.deviation.corner_max < _or_inf(chosen.deviation.corner_max)
 
 
 def _shaped_as(other: Measured, chosen: Measured, data: DataShape) -> bool:

@@ -17,6 +17,8 @@ from swarmcurves_jax.excursions import data_segments, excursion
 from swarmcurves_jax.span_basis import curve_samples, make_span_basis
 from swarmcurves_jax.knots import make_knots
 from swarmcurves_jax.measures import (
+    corner_distances,
+    corners,
     crossings,
     curve_polyline,
     deviations,
@@ -278,3 +280,77 @@ def test_a_z_across_noisy_points_along_a_line_pays_the_order_gap():
     assert order_gap(points, samples, False) == pytest.approx(0.1 * 10 / 21, rel=1e-9)
     line = np.array([[0.0, 0.0], [1.0, 0.0]])
     assert order_gap(points, line, False) == 0.0
+
+
+def _tent(num=10):
+    """Points on both flanks of the tent ``y = 1 - 2|x|``, none at its tip: the tip lies
+    between the two middle samples, 0.1 above their chord."""
+    x = np.linspace(-0.95, 0.95, num)
+    return np.c_[x, 1.0 - 2.0 * np.abs(x)]
+
+
+def test_a_peak_between_two_samples_is_a_corner_with_its_tip():
+    chord, apex = corners(_tent(), closed=False)
+    assert chord.tolist() == [4]  # the chord from the fifth point to the sixth
+    np.testing.assert_allclose(apex, [[0.0, 1.0]], atol=1e-12)
+
+
+def test_smooth_dense_data_and_sampled_corners_have_none():
+    u = np.linspace(0.0, 2.0 * np.pi, 200, endpoint=False)
+    circle = np.c_[np.cos(u), np.sin(u)]
+    assert len(corners(circle, closed=True)[0]) == 0
+    assert len(corners(_tent(11), closed=False)[0]) == 0  # a sample at the tip
+    square = np.array([[0, 0], [0.5, 0], [1, 0], [1, 0.5], [1, 1], [0.5, 1], [0, 1], [0, 0.5]])
+    assert len(corners(square.astype(float), closed=True)[0]) == 0
+    helix = np.c_[circle, u]
+    assert len(corners(helix, closed=False)[0]) == 0  # 3D: none
+
+
+def test_a_curve_up_to_the_tip_is_as_near_as_the_data_allow():
+    """The tent's tip, a point between it and the chord, a point 0.2 above the tip and a
+    point below the chord: zero, zero, 0.2 (to the tip) and the polyline's own distance."""
+    points = _tent()
+    polyline = points
+    samples = np.array([[0.0, 1.0], [0.0, 0.9], [0.0, 1.2], [0.0, 0.7], [0.5, 0.0]])
+    d = distance_to_polyline(samples, polyline)
+    out = corner_distances(samples, polyline, d, corners(points, False))
+    np.testing.assert_allclose(out, [0.0, 0.0, 0.2, d[3], d[4]], atol=1e-12)
+    assert d[0] == pytest.approx(1.0 - (1 - 1.9 / 9), rel=1e-12)  # the polyline alone: 0.21
+
+
+def _union_distance(x, polyline, found):
+    """Brute force: the distance from ``x`` to the polyline's chords and the triangles."""
+    best = np.min([_segment(x, a, b) for a, b in zip(polyline[:-1], polyline[1:])])
+    for i, b in zip(*found):
+        a, c = polyline[i], polyline[i + 1]
+        sides = [_cross2(v - u, x - u) for u, v in ((a, b), (b, c), (c, a))]
+        if min(sides) >= 0 or max(sides) <= 0:
+            return 0.0
+        best = min(best, _segment(x, a, b), _segment(x, b, c))
+    return best
+
+
+def _cross2(u, v):
+    return u[0] * v[1] - u[1] * v[0]
+
+
+def _segment(x, a, b):
+    t = np.clip(np.dot(x - a, b - a) / max(np.dot(b - a, b - a), 1e-300), 0.0, 1.0)
+    return float(np.linalg.norm(x - a - t * (b - a)))
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(4, 30), st.booleans())
+def test_corner_distances_are_the_distances_to_polyline_and_corners(seed, num, closed):
+    """Zig-zag data (a corner at many chords) and samples scattered over them: the
+    distance to the polyline and the corners' triangles together, by brute force."""
+    rng = np.random.default_rng(seed)
+    points = np.c_[np.linspace(0, 1, num), rng.normal(0, 0.3, num)]
+    polyline = np.vstack([points, points[:1]]) if closed else points
+    samples = rng.uniform([-0.2, -1.0], [1.2, 1.0], (300, 2))
+    found = corners(points, closed)
+    d = distance_to_polyline(samples, polyline)
+    out = corner_distances(samples, polyline, d, found)
+    expected = [_union_distance(x, polyline, found) for x in samples]
+    np.testing.assert_allclose(out, expected, atol=1e-12)
+    assert np.all(out <= d)
