@@ -284,7 +284,7 @@ def test_a_z_across_noisy_points_along_a_line_pays_the_order_gap():
 
 def _tent(num=10):
     """Points on both flanks of the tent ``y = 1 - 2|x|``, none at its tip: the tip lies
-    between the two middle samples, 0.1 above their chord."""
+    between the two middle samples, 0.21 above their chord."""
     x = np.linspace(-0.95, 0.95, num)
     return np.c_[x, 1.0 - 2.0 * np.abs(x)]
 
