@@ -75,7 +75,7 @@ class Deviations(NamedTuple):
     crossings: int  # how often the curve crosses itself (2D; a 3D curve: 0)
     corner_max: float  # max_deviation, the data's corners between samples allowed for
     corner_mean: float  # mean_deviation, the same
-    order_gap: float = 0.0  # mean data -> curve distance in the data's order, less error
+    order_gap: float  # mean data -> curve distance in the data's order, less error (0 unmeasured)
 
 
 def data_polyline(points: np.ndarray, closed: bool) -> np.ndarray:
@@ -224,8 +224,12 @@ def _pieces(pts: np.ndarray):
 def _side(a, b, c) -> np.ndarray:
     """Which side of the line through ``a`` and ``b`` each ``c`` lies on (the sign of the
     2D cross product; 0 on the line)."""
-    (bx, by), (cx, cy) = (b - a).T, (c - a).T
-    return np.sign(bx * cy - by * cx)
+    return np.sign(_cross(b - a, c - a))
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The 2D cross products of the rows of ``a`` and ``b``."""
+    return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
 
 
 def sample_excursions(samples, polyline) -> tuple[float, float, float]:
@@ -284,10 +288,6 @@ def corners(points, closed: bool) -> tuple[np.ndarray, np.ndarray]:
     return chord, apex[keep]
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-
-
 def corner_distances(samples, polyline, d: np.ndarray, found) -> np.ndarray:
     """The distances ``d`` (M,) of the curve's ``samples`` (M, 2) to the data ``polyline``
     with the data's :func:`corners` ``found`` allowed for: the distance to the polyline and
@@ -307,7 +307,7 @@ def corner_distances(samples, polyline, d: np.ndarray, found) -> np.ndarray:
     keep = np.linalg.norm(x - centre[corner], axis=1) - reach[corner] < d[sample]
     sample, corner, x = sample[keep], corner[keep], x[keep]
     a, b, c = p[corner], apex[corner], q[corner]
-    sides = np.stack([_cross(b - a, x - a), _cross(c - b, x - b), _cross(a - c, x - c)])
+    sides = np.stack([_side(a, b, x), _side(b, c, x), _side(c, a, x)])
     inside = np.all(sides >= 0, axis=0) | np.all(sides <= 0, axis=0)
     pairs = np.stack([corner, corner + len(p)], axis=1)  # its two outer sides
     outer = np.min(segment_distances(x, np.vstack([p, apex]), np.vstack([apex, q]), pairs), 1)

@@ -42,7 +42,7 @@ class DataShape(NamedTuple):
 
     turning: float
     crossings: int
-    scatter: float = 0.0
+    scatter: float
 
     @classmethod
     def of(cls, points: np.ndarray, closed: bool) -> "DataShape":
