@@ -42,12 +42,18 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from swarmcurves_jax import Curve, fit  # noqa: E402
-from swarmcurves_jax.datasets import ANALYTIC, read_outlines  # noqa: E402
+from swarmcurves_jax.datasets import ANALYTIC, analytic_points, read_outlines  # noqa: E402
 from swarmcurves_jax.knots import make_knots  # noqa: E402
-from swarmcurves_jax.measures import crossings, data_polyline, deviations  # noqa: E402
-from swarmcurves_jax.paper import TABLE1, TRUTH_SAMPLES, arc_length_samples  # noqa: E402
+from swarmcurves_jax.measures import crossings, deviations  # noqa: E402
+from swarmcurves_jax.paper import (  # noqa: E402
+    TABLE1,
+    TRUTH_SAMPLES,
+    hausdorff_distance,
+    symmetric_distance,
+)
+from swarmcurves_jax.plotting import save_figure  # noqa: E402
 from swarmcurves_jax.prepare import normalise  # noqa: E402
-from swarmcurves_jax.projection import distance_to_polyline, project_points  # noqa: E402
+from swarmcurves_jax.projection import project_points  # noqa: E402
 from swarmcurves_jax.seeds import least_squares_ctrl  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -64,11 +70,7 @@ def truth_distances(curve: Curve, truth: np.ndarray, closed: bool) -> tuple[floa
     """(symmetric mean distance, Hausdorff distance) between a curve and the truth's dense
     samples, each resampled at TRUTH_SAMPLES points evenly spaced by arc length."""
     dense = curve.evaluate(np.linspace(0.0, 1.0, 4 * TRUTH_SAMPLES, endpoint=not closed))
-    a = arc_length_samples(dense, TRUTH_SAMPLES, closed)
-    b = arc_length_samples(truth, TRUTH_SAMPLES, closed)
-    ab = distance_to_polyline(a, data_polyline(b, closed))
-    ba = distance_to_polyline(b, data_polyline(a, closed))
-    return 0.5 * float(ab.mean() + ba.mean()), float(max(ab.max(), ba.max()))
+    return symmetric_distance(dense, truth, closed), hausdorff_distance(dense, truth, closed)
 
 
 def measure(curve: Curve, pts: np.ndarray, truth: np.ndarray, closed: bool) -> dict:
@@ -116,12 +118,10 @@ def baseline(pts: np.ndarray, n: int, closed: bool, degree: int = DEGREE) -> Cur
 
 def run_table1(args) -> list[dict]:
     rows = []
-    for name, (fn, (lo, hi)) in ANALYTIC.items():
-        x = np.linspace(lo, hi, 200)
-        xd = np.linspace(lo, hi, 4 * TRUTH_SAMPLES)
-        raw = np.c_[x, fn(x)]
+    for name in ANALYTIC:
+        raw = analytic_points(name)
         pts, center, scale = normalise(raw)
-        truth = (np.c_[xd, fn(xd)] - center) / scale
+        truth = (analytic_points(name, 4 * TRUTH_SAMPLES) - center) / scale
         start = time.perf_counter()
         result = fit(
             raw, cps=TABLE1_CPS, degrees=DEGREE, iterations=args.iterations, seed=args.seed
@@ -289,9 +289,7 @@ def draw_table1(rows, path: Path) -> Path:
         ax.set_aspect("equal")
     np.atleast_1d(axes)[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def draw_outlines(rows, path: Path) -> Path:
@@ -316,9 +314,7 @@ def draw_outlines(rows, path: Path) -> Path:
         ax.set_yticks([])
     fig.suptitle("grey: truth, blue: least squares, red: ours (frame: data ± 0.3)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 #: Each part of the report: how it runs, its lines, its figure.

@@ -44,7 +44,7 @@ from swarmcurves_jax.paper import (  # noqa: E402
     paper_cases,
     run_case,
 )
-from swarmcurves_jax.plotting import plot_error_vs_cps, plot_result  # noqa: E402
+from swarmcurves_jax.plotting import plot_error_vs_cps, plot_result, save_figure  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 PLAIN = ("error_pct_diag", "wall_time")  # printed as plain numbers, not in e-notation
@@ -264,9 +264,7 @@ def write_figures(runs, fig_dir: Path) -> list[Path]:
             title=f"{run.case.figure}: {run.case.name}",
         )
         path = fig_dir / f"{slug(run.case.name)}.png"
-        fig.savefig(path, dpi=90)
-        plt.close(fig)
-        written.append(path)
+        written.append(save_figure(fig, path))
     table = [r for r in runs if r.case.figure == FIGURES[-1]]
     if table:
         fig, axes = plt.subplots(1, len(table), figsize=(4 * len(table), 3.6), squeeze=False)
@@ -281,9 +279,7 @@ def write_figures(runs, fig_dir: Path) -> list[Path]:
             ax.legend(fontsize="small")
         fig.tight_layout()
         path = fig_dir / "table1-error-vs-cps.png"
-        fig.savefig(path, dpi=90)
-        plt.close(fig)
-        written.append(path)
+        written.append(save_figure(fig, path))
     return written
 
 

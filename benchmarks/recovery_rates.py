@@ -171,6 +171,8 @@ def draw_failures(results: list[dict], path: Path, panels: int = 12) -> Path | N
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from swarmcurves_jax.plotting import save_figure
+
     failed = [
         r
         for r in results
@@ -206,9 +208,7 @@ def draw_failures(results: list[dict], path: Path, panels: int = 12) -> Path | N
         ax.tick_params(labelsize=6)
     axes.flat[0].legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def report_lines(results: list[dict], args) -> list[str]:

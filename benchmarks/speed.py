@@ -540,6 +540,8 @@ def figures(report, out: Path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from swarmcurves_jax.plotting import save_figure
+
     sc = report.get("scaling")
     if sc:
         fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
@@ -563,8 +565,7 @@ def figures(report, out: Path):
             ax.grid(True, which="both", alpha=0.3)
             ax.legend(fontsize="small")
         fig.tight_layout()
-        fig.savefig(out / "scaling.png", dpi=90)
-        plt.close(fig)
+        save_figure(fig, out / "scaling.png")
     rf = report.get("roofline")
     if rf:
         fig, ax = plt.subplots(figsize=(5.5, 4))
@@ -576,8 +577,7 @@ def figures(report, out: Path):
         ax.set_ylabel("GFLOP/s (float32)")
         ax.set_title(f"W1 runs at {100 * rf['fraction_of_peak']:.0f} % of the matmul peak")
         fig.tight_layout()
-        fig.savefig(out / "roofline.png", dpi=90)
-        plt.close(fig)
+        save_figure(fig, out / "roofline.png")
 
 
 def markdown(report) -> str:

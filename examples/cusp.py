@@ -24,20 +24,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.interpolate import make_lsq_spline  # noqa: E402
-from scipy.spatial import cKDTree  # noqa: E402
 
 from swarmcurves_jax import fit, make_knots  # noqa: E402
-from swarmcurves_jax.datasets import ANALYTIC, analytic_points  # noqa: E402
-
-
-def true_f3(num: int = 100_001) -> np.ndarray:
-    fn, (lo, hi) = ANALYTIC["f3"]
-    x = np.linspace(lo, hi, num)
-    return np.c_[x, fn(x)]
-
-
-def hausdorff(a: np.ndarray, b: np.ndarray) -> float:
-    return float(max(cKDTree(b).query(a)[0].max(), cKDTree(a).query(b)[0].max()))
+from swarmcurves_jax.datasets import analytic_points  # noqa: E402
+from swarmcurves_jax.paper import hausdorff_distance  # noqa: E402
+from swarmcurves_jax.plotting import save_figure  # noqa: E402
 
 
 def scipy_lsq(points: np.ndarray, n: int) -> np.ndarray:
@@ -51,16 +42,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "docs/figures"))
     args = parser.parse_args()
-    points, truth = analytic_points("f3"), true_f3()
+    points, truth = analytic_points("f3"), analytic_points("f3", 100_001)
     result = fit(points, cps=[11, 16], seed=0)
     fig, axes = plt.subplots(2, 2, figsize=(10, 8))
     for (whole, tip), c in zip(axes.T, result.solutions):
         curve = c.evaluate(np.linspace(0.0, 1.0, 20_001))
-        away = hausdorff(curve, truth)
+        away = hausdorff_distance(curve, truth)
         print(f"n={c.n_ctrl}: {c.info['source']}, max_deviation {c.max_deviation:.2e} "
               f"(corners allowed for: {c.info['corner_max_deviation']:.2e}), "
               f"Hausdorff distance to the true f3 {away:.2e}; scipy's least squares: "
-              f"{hausdorff(scipy_lsq(points, c.n_ctrl), truth):.2e}")  # fmt: skip
+              f"{hausdorff_distance(scipy_lsq(points, c.n_ctrl), truth):.2e}")  # fmt: skip
         for ax in (whole, tip):
             ax.plot(*truth.T, "-", color="0.75", lw=4, label="true f3")
             ax.plot(*points.T, "k.-", lw=0.5, ms=3, label="data")
@@ -71,9 +62,7 @@ def main() -> None:
         tip.set_title("at the tip", fontsize=9)
         tip.legend(fontsize=8, loc="lower center")
     fig.tight_layout()
-    path = Path(args.out) / "cusp.png"
-    fig.savefig(path, dpi=90)
-    print(f"wrote {path}")
+    print(f"wrote {save_figure(fig, Path(args.out) / 'cusp.png')}")
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from swarmcurves_jax import fit  # noqa: E402
+from swarmcurves_jax.plotting import save_figure  # noqa: E402
 
 L_OUTLINE = np.array(
     [[0, 0], [1, 0], [2, 0], [2, 0.5], [2, 1], [1.5, 1], [1, 1], [1, 1.5], [1, 2], [0.5, 2],
@@ -77,9 +78,7 @@ def main() -> None:
     for ax, n in zip(bottom, (5, 6)):
         draw(ax, NOISY_LINE, line[3, n])
     fig.tight_layout()
-    path = Path(args.out) / "loops.png"
-    fig.savefig(path, dpi=90)
-    print(f"wrote {path}")
+    print(f"wrote {save_figure(fig, Path(args.out) / 'loops.png')}")
 
 
 if __name__ == "__main__":

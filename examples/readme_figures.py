@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from swarmcurves_jax import fit  # noqa: E402
-from swarmcurves_jax.plotting import plot_control_polygon, plot_curve  # noqa: E402
+from swarmcurves_jax.plotting import plot_control_polygon, plot_curve, save_figure  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 
@@ -38,8 +38,7 @@ def draw_fit(result, points, path: Path) -> None:
     )
     ax.set_aspect("equal")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def draw_choice(result, points, path: Path) -> None:
@@ -71,8 +70,7 @@ def draw_choice(result, points, path: Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(loc="upper right")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def main(argv=None) -> int:

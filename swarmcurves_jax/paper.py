@@ -37,6 +37,7 @@ __all__ = [
     "paper_cases",
     "run_case",
     "symmetric_distance",
+    "hausdorff_distance",
     "arc_length_samples",
 ]
 
@@ -123,9 +124,23 @@ def symmetric_distance(a: np.ndarray, b: np.ndarray, closed: bool = False) -> fl
     the mean of (mean distance from ``a`` to ``b``) and (from ``b`` to ``a``), each curve
     resampled at 10,000 points evenly spaced by arc length and measured against the other
     as a polyline."""
+    ab, ba = _both_ways(a, b, closed)
+    return 0.5 * float(ab.mean() + ba.mean())
+
+
+def hausdorff_distance(a: np.ndarray, b: np.ndarray, closed: bool = False) -> float:
+    """The Hausdorff distance between two curves given as dense ordered samples, measured as
+    :func:`symmetric_distance` measures: the largest distance either way."""
+    ab, ba = _both_ways(a, b, closed)
+    return float(max(ab.max(), ba.max()))
+
+
+def _both_ways(a: np.ndarray, b: np.ndarray, closed: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Each curve resampled at :data:`TRUTH_SAMPLES` points evenly spaced by arc length,
+    and those points' distances to the other as a polyline: ``a`` to ``b``, ``b`` to ``a``."""
     pa = arc_length_samples(a, TRUTH_SAMPLES, closed)
     pb = arc_length_samples(b, TRUTH_SAMPLES, closed)
-    return 0.5 * float(_to_polyline(pa, pb, closed).mean() + _to_polyline(pb, pa, closed).mean())
+    return _to_polyline(pa, pb, closed), _to_polyline(pb, pa, closed)
 
 
 # --------------------------------------------------------------------------- cases

@@ -17,7 +17,21 @@ __all__ = [
     "plot_solution",
     "plot_error_vs_cps",
     "plot_result",
+    "save_figure",
 ]
+
+
+def save_figure(fig, path, dpi: int = 90):
+    """Write ``fig`` to ``path`` as a PNG, atomically (a reader finds the old file or the
+    new one, whole), and close it; returns ``path``."""
+    import matplotlib.pyplot as plt
+
+    from .export import atomic_write
+
+    with atomic_write(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=dpi)
+    plt.close(fig)
+    return path
 
 
 def _axes(ax, projection=None):

@@ -143,14 +143,10 @@ def _write_figures(cfg, result, points, out: Path) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .export import atomic_write
-    from .plotting import plot_error_vs_cps, plot_solution
+    from .plotting import plot_error_vs_cps, plot_solution, save_figure
 
     def save(fig, name):
-        with atomic_write(out / name, "wb") as fh:
-            fig.savefig(fh, format="png", dpi=120)
-        plt.close(fig)
-        return out / name
+        return save_figure(fig, out / name, dpi=120)
 
     written = []
     chosen = {"best": result.best, "sparsest": _sparsest(cfg, result)}

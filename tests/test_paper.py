@@ -12,6 +12,7 @@ from swarmcurves_jax.datasets import butterfly_nurbs, circular_arc_points, remov
 from swarmcurves_jax.paper import (
     FIGURES,
     arc_length_samples,
+    hausdorff_distance,
     paper_cases,
     run_case,
     symmetric_distance,
@@ -32,6 +33,22 @@ def test_symmetric_distance_of_known_pairs():
     half = np.c_[np.linspace(0, 0.5, 200), np.zeros(200)]
     assert symmetric_distance(line, half) == pytest.approx(0.0625, rel=1e-3)
     assert symmetric_distance(circle, circle[::-1], closed=True) == pytest.approx(0, abs=1e-12)
+
+
+def test_hausdorff_distance_of_known_pairs():
+    """The largest gap either way: a spike one way, a missing half the other; within the
+    spacing of the 10,000 arc-length samples (the spike's tip falls between two)."""
+    x = np.linspace(0, 1, 301)
+    line = np.c_[x, 0 * x]
+    spike = line.copy()
+    spike[150, 1] = 0.3  # a spike to (0.5, 0.3): 0.3 from the line, the line 0 from it
+    assert hausdorff_distance(line, spike) == pytest.approx(0.3, abs=2e-4)
+    assert hausdorff_distance(spike, line) == pytest.approx(0.3, abs=2e-4)
+    half = np.c_[np.linspace(0, 0.5, 200), np.zeros(200)]
+    assert hausdorff_distance(line, half) == pytest.approx(0.5, rel=1e-12)  # (1, 0) to (0.5, 0)
+    a = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    circle = np.c_[np.cos(a), np.sin(a)]
+    assert hausdorff_distance(circle, 1.1 * circle, closed=True) == pytest.approx(0.1, rel=1e-4)
 
 
 @settings(max_examples=8)  # 0.4 s an example; the property is linear in the frame
