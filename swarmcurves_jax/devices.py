@@ -102,11 +102,12 @@ class Placement(NamedTuple):
 
 
 def host_map(fn, items) -> list:
-    """``[fn(x) for x in items]``, in order, on a thread per CPU: the host's per-swarm
-    work (least-squares seeds, true projections) comes before and after a lone fit's swarm
-    program, and its k-d tree queries and LAPACK solves release Python's lock.  Measured
-    on W1 (2 cores, warm): seeds 0.27 -> 0.19 s, projections 0.18 -> 0.13 s, the same
-    curves bit for bit."""
+    """``[fn(x) for x in items]``, in order, on a thread per CPU: the true projections of
+    every swarm's curves come after a lone fit's swarm program, and their k-d tree queries
+    release Python's lock.  Measured on W1 (2 cores, warm): projections 0.18 -> 0.13 s, the
+    same curves bit for bit.  The seeds do not use it
+    (:func:`~swarmcurves_jax.seeds.seed_positions`): their rounds are many small NumPy
+    calls that hold the lock."""
     items = list(items)
     workers = min(len(items), os.cpu_count() or 1)
     if workers < 2:

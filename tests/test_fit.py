@@ -390,10 +390,10 @@ def test_search_apart_agrees_with_the_fused_search(monkeypatch, rational, search
     np.testing.assert_allclose(apart[:, 0], fused[:, 0], rtol=1e-5)
 
 
-def test_host_work_on_threads_equals_the_plain_loop():
-    """The seeds (and projections) run on a thread per CPU (``devices.host_map``): in order,
-    each swarm's seed and classic fit exactly its own least-squares fits, and an error comes
-    out as raised."""
+def test_seed_positions_and_host_map_equal_the_plain_loop():
+    """Each swarm's seed and classic fit are exactly its own least-squares fits, in order;
+    the projections' thread per CPU (``devices.host_map``) keeps the order, and an error
+    comes out as raised."""
     from swarmcurves_jax.devices import host_map
     from swarmcurves_jax.layout import Layout
     from swarmcurves_jax.prepare import normalise

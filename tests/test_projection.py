@@ -103,6 +103,28 @@ def test_distance_to_polyline_is_the_nearest_segments(seed, m, spread):
     )
 
 
+@given(
+    st.integers(0, 10_000),
+    st.sampled_from([2, 3]),
+    st.integers(2, projection.EVERY_CHORD_VERTICES),
+    st.sampled_from([0.01, 1.0, 30.0]),
+)
+def test_short_polylines_measured_chord_by_chord_as_the_tree_search_measures(
+    seed, dim, m, spread
+):
+    """A short polyline is measured against every chord, a long one through the k-d tree
+    (``_nearest_chords``): the two give the same distances, bit for bit (one arithmetic),
+    so where the switch falls moves no figure."""
+    rng = np.random.default_rng(seed)
+    vertices = np.cumsum(rng.normal(size=(m, dim)) * rng.exponential(1.0, (m, 1)), axis=0)
+    vertices[rng.random(m) < 0.2] = vertices[0]
+    pts = vertices.mean(axis=0) + spread * rng.normal(size=(300, dim))
+    tree = np.sqrt(_nearest_chords(pts, vertices, top=1)[1][:, 0])
+    np.testing.assert_array_equal(distance_to_polyline(pts, vertices), tree)
+    every = projection.segment_distances(pts, vertices[:-1], vertices[1:])
+    np.testing.assert_array_equal(np.min(every, axis=1), tree)
+
+
 def test_distance_to_polyline_past_crowded_vertices():
     """The nearest segment's ends far away, five other vertices nearer: the segments beside
     a point's 4 nearest vertices (the paper suite's old metric) would give 0.2, not 0.1."""
