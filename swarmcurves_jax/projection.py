@@ -82,10 +82,10 @@ def _d2(ap, ab, inv):
     """Squared distances from points to chords, given per coordinate: ``ap[d]`` each
     point's offset from a chord's start, ``ab[d]`` the chord, ``inv`` its inverse squared
     length (arrays that broadcast together).  The coordinates are summed in order: one
-    arithmetic for the chords a search picked and for every chord (:func:`_every_chord`),
+    arithmetic for the chords a search picked and for every chord (:func:`_every_chord_d2`),
     so both give the same distance bit for bit."""
     s = ap[0] * ab[0]
-    for x, y in zip(ap[1:], ab[1:]):
+    for x, y in zip(ap[1:], ab[1:], strict=True):
         s += x * y
     s *= inv
     np.clip(s, 0.0, 1.0, out=s)
@@ -97,11 +97,18 @@ def _d2(ap, ab, inv):
     return d2
 
 
-def _every_chord(points, a, ab, inv):
-    """The offsets and chords :func:`_d2` takes, for every point (N, D) against every
-    chord (M, D): per coordinate, broadcast to (N, M) without gathering by index."""
+def _every_chord_d2(points, a, ab, inv):
+    """Squared distances (N, M) from every point (N, D) to every chord of ``a + s ab``
+    (M, D): :func:`_d2` per coordinate, broadcast without gathering by index."""
     coords = range(points.shape[1])
-    return [points[:, d, None] - a[:, d] for d in coords], [ab[:, d] for d in coords]
+    return _d2([points[:, d, None] - a[:, d] for d in coords], [ab[:, d] for d in coords], inv)
+
+
+def _chords(starts, ends):
+    """``(a, ab, inv)`` of the chords from ``starts`` to ``ends`` (M, D): start, direction
+    and inverse squared length (a point-like chord's kept finite)."""
+    ab = ends - starts
+    return starts, ab, 1.0 / np.maximum(np.sum(ab * ab, axis=1), 1e-300)
 
 
 #: A polyline of at most this many vertices is searched chord by chord
@@ -121,22 +128,20 @@ def _nearest_chords(points, samples, top=3):
     an end within ``sqrt(r^2 + L^2/4)``.  So the chords at a point's nearest samples (a
     k-d tree; how many: :func:`_samples_to_settle`) hold the answer whenever the farthest
     of those samples lies that far, with ``r`` the ``top``-th nearest chord's distance
-    among them.  A point they leave unsure asks the tree for every sample within that
-    reach and ranks the chords there (:func:`_rank_chords_at`).  Exact either way, and
-    about 10x quicker than searching every chord for every point (measured on W1's
-    solutions, from 16 samples; 16 rather than 32, and an unbalanced tree: 115 -> 98 ms,
-    the same chords).  The bound by ``r + L/2`` instead left 98 % of a far curve's
-    samples unsure (``R`` hardly exceeds ``r`` there).  Asking unsure points again for 8
-    times as many samples, until sure, took 2.6 s against 0.74 s for the curve -> data
+    among them.  A point they leave unsure asks the tree for every sample within that reach
+    and ranks the chords there (:func:`_rank_chords_at`).  Exact either way, and, against a
+    curve's dense samples, about 10x quicker than searching every chord for every point
+    (measured on W1's solutions, from 16 samples; 16 rather than 32, and an unbalanced tree:
+    115 -> 98 ms, the same chords).  The bound by ``r + L/2`` instead left 98 % of a far
+    curve's samples unsure (``R`` hardly exceeds ``r`` there).  Asking unsure points again
+    for 8 times as many samples, until sure, took 2.6 s against 0.74 s for the curve -> data
     distances of a curve's 98,000 samples to a 20,000-point polyline.  scipy's tree, not
-    pykdtree's (the seeds'): pykdtree's 16-neighbour queries were 5 % quicker on idle
-    cores but 4x slower with both cores busy elsewhere (its OpenMP query waits for its
-    descheduled threads).
+    pykdtree's (the seeds'): pykdtree's 16-neighbour queries were 5 % quicker on idle cores
+    but 4x slower with both cores busy elsewhere (its OpenMP query waits for its descheduled
+    threads).
     """
-    a = samples[:-1]
-    ab = samples[1:] - a
-    len2 = np.sum(ab**2, axis=1)
-    chords = (a, ab, 1.0 / np.maximum(len2, 1e-300))
+    chords = _chords(samples[:-1], samples[1:])
+    len2 = np.sum(chords[1] ** 2, axis=1)
     out = np.empty((len(points), top), dtype=np.int64)
     out_d2 = np.empty((len(points), top))
     tree = cKDTree(samples, balanced_tree=False, compact_nodes=False)
@@ -147,7 +152,7 @@ def _nearest_chords(points, samples, top=3):
     for lo in range(0, len(points), chunk):
         at = np.arange(lo, min(lo + chunk, len(points)))
         dist, vert = (x.reshape(len(at), near) for x in tree.query(points[at], k=near))
-        cand = np.sort(np.clip(np.c_[vert - 1, vert], 0, len(a) - 1), axis=1)
+        cand = np.sort(np.clip(np.c_[vert - 1, vert], 0, len(len2) - 1), axis=1)
         d2 = _chord_d2(points[at], *chords, cand)
         d2[:, 1:][cand[:, 1:] == cand[:, :-1]] = np.inf  # each chord once
         pick = np.argpartition(d2, top - 1, axis=1)[:, :top]
@@ -211,11 +216,10 @@ def _rank_chords_at(points, rows, found, chords, top):
 def segment_distances(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, idx=None):
     """Distance from each point (N, D) to segments ``idx`` (N, C) of those from ``starts``
     to ``ends`` (M, D); to every segment, (N, M), if ``idx`` is None."""
-    ab = ends - starts
-    inv = 1.0 / np.maximum(np.sum(ab * ab, axis=1), 1e-300)
+    chords = _chords(starts, ends)
     if idx is None:
-        return np.sqrt(_d2(*_every_chord(points, starts, ab, inv), inv))
-    return np.sqrt(_chord_d2(points, starts, ab, inv, idx))
+        return np.sqrt(_every_chord_d2(points, *chords))
+    return np.sqrt(_chord_d2(points, *chords, idx))
 
 
 def distance_to_polyline(points: np.ndarray, vertices: np.ndarray) -> np.ndarray:
@@ -228,14 +232,11 @@ def distance_to_polyline(points: np.ndarray, vertices: np.ndarray) -> np.ndarray
         return np.linalg.norm(points - vertices[:1], axis=1)
     if len(vertices) > EVERY_CHORD_VERTICES:
         return np.sqrt(_nearest_chords(points, vertices, top=1)[1][:, 0])
-    a = vertices[:-1]
-    ab = vertices[1:] - a
-    inv = 1.0 / np.maximum(np.sum(ab**2, axis=1), 1e-300)
-    rows = max(1, 32768 // len(a))  # temporaries of 32,768 pairs stay in the cache
+    chords = _chords(vertices[:-1], vertices[1:])
+    rows = max(1, 32768 // (len(vertices) - 1))  # temporaries of 32,768 pairs stay cached
     out = np.empty(len(points))
     for lo in range(0, len(points), rows):
-        part = points[lo : lo + rows]
-        out[lo : lo + rows] = np.min(_d2(*_every_chord(part, a, ab, inv), inv), axis=1)
+        out[lo : lo + rows] = np.min(_every_chord_d2(points[lo : lo + rows], *chords), axis=1)
     return np.sqrt(out)
 
 
