@@ -111,12 +111,13 @@ def _chords(starts, ends):
     return starts, ab, 1.0 / np.maximum(np.sum(ab * ab, axis=1), 1e-300)
 
 
-#: A polyline of at most this many vertices is searched chord by chord
-#: (:func:`distance_to_polyline`).  512 samples of a seed's curve against the data
-#: polyline: f4's 200 points 0.92 ms against 0.94 ms by the k-d tree, an outline's 201
-#: points with long and short chords (which leave the tree unsure of many samples) 0.87
-#: against 6.3 ms; against f4 at 300 and 1,000 points the tree was 1.3x and 3.5x quicker.
-EVERY_CHORD_VERTICES = 256
+#: :func:`distance_to_polyline` measures every chord of a polyline with at most this many
+#: chords per sample the k-d tree search would start from (:func:`_samples_to_settle`: 4
+#: for even chords, up to 16 where long chords lie among short ones).  Measured on the
+#: curve -> data distances of fits to the outlines, f4 and random B-splines: every chord
+#: costs about 9 ns a (point, chord) pair, the tree 1-1.5 us a point from 4 samples and
+#: 2.3-4 us from 14-16 (more where a long chord leaves many points unsure).
+EVERY_CHORD_PER_SAMPLE = 20
 
 
 def _nearest_chords(points, samples, top=3):
@@ -225,14 +226,15 @@ def segment_distances(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, 
 def distance_to_polyline(points: np.ndarray, vertices: np.ndarray) -> np.ndarray:
     """Exact distance (N,) from every point (N, D) to the polyline through ``vertices``
     (M, D; one vertex: the distance to it): the curve -> data side of the two-sided
-    measures.  Every chord is measured for a short polyline
-    (:data:`EVERY_CHORD_VERTICES`), the nearest ones found by :func:`_nearest_chords`
-    for a long one."""
+    measures.  Every chord is measured where that is the quicker search
+    (:data:`EVERY_CHORD_PER_SAMPLE`), the nearest ones found by :func:`_nearest_chords`
+    elsewhere: the same distances bit for bit."""
     if len(vertices) < 2:
         return np.linalg.norm(points - vertices[:1], axis=1)
-    if len(vertices) > EVERY_CHORD_VERTICES:
-        return np.sqrt(_nearest_chords(points, vertices, top=1)[1][:, 0])
     chords = _chords(vertices[:-1], vertices[1:])
+    near = _samples_to_settle(np.sum(chords[1] ** 2, axis=1), 1)
+    if len(vertices) - 1 > EVERY_CHORD_PER_SAMPLE * near:
+        return np.sqrt(_nearest_chords(points, vertices, top=1)[1][:, 0])
     rows = max(1, 32768 // (len(vertices) - 1))  # temporaries of 32,768 pairs stay cached
     out = np.empty(len(points))
     for lo in range(0, len(points), rows):

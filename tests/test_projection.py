@@ -106,15 +106,15 @@ def test_distance_to_polyline_is_the_nearest_segments(seed, m, spread):
 @given(
     st.integers(0, 10_000),
     st.sampled_from([2, 3]),
-    st.integers(2, projection.EVERY_CHORD_VERTICES),
+    st.integers(2, 20 * projection.EVERY_CHORD_PER_SAMPLE),
     st.sampled_from([0.01, 1.0, 30.0]),
 )
 def test_short_polylines_measured_chord_by_chord_as_the_tree_search_measures(
     seed, dim, m, spread
 ):
-    """A short polyline is measured against every chord, a long one through the k-d tree
-    (``_nearest_chords``): the two give the same distances, bit for bit (one arithmetic),
-    so where the switch falls moves no figure."""
+    """A polyline is measured against every chord or through the k-d tree
+    (``_nearest_chords``), whichever is quicker for it: the two give the same distances,
+    bit for bit (one arithmetic), so where the switch falls moves no figure."""
     rng = np.random.default_rng(seed)
     vertices = np.cumsum(rng.normal(size=(m, dim)) * rng.exponential(1.0, (m, 1)), axis=0)
     vertices[rng.random(m) < 0.2] = vertices[0]
