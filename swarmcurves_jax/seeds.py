@@ -11,10 +11,13 @@ chord-length and even parameters.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import threading
 
 import numpy as np
 from pykdtree.kdtree import KDTree
+from threadpoolctl import ThreadpoolController
 
 from .basis import design_matrix
 from .knots import curvature_widths, logits_from_widths, make_knots
@@ -261,20 +264,44 @@ def _corrected(b, dense, points, ends, rounds):
     kept exactly rather than traded for grid-snapped parameters."""
     ctrl = _lsq(b, points, ends)
     best, best_err, last = ctrl, np.inf, None
-    for _ in range(rounds + 1):
-        # each point's nearest grid sample, exact (pykdtree rather than scipy's cKDTree: W1's
-        # seeds 0.18 -> 0.10 s on two threads; cKDTree spends three quarters of its build
-        # in NumPy's slow min and max down the columns of a (2048, 2) array); leaves of 64
-        # samples: a round's tree built and queried in 76 us instead of 111 us (16)
-        dist, j = KDTree(dense @ ctrl, leafsize=64).query(points)
-        err = np.mean(np.minimum(dist, np.linalg.norm(b @ ctrl - points, axis=1)))
-        if err < best_err:  # a correction can also fold the parameters: keep the best
-            best, best_err = ctrl, err
-        if best_err <= EXACT or (last is not None and np.array_equal(j, last)):
-            break  # exact, or a fixed point: every later round would give this curve again
-        b, last = dense[j], j
-        ctrl = _lsq(b, points, ends)
+    with _one_openmp_thread():
+        for _ in range(rounds + 1):
+            # each point's nearest grid sample, exact (pykdtree rather than scipy's cKDTree:
+            # W1's seeds 0.18 -> 0.10 s on two threads; cKDTree spends three quarters of its
+            # build in NumPy's slow min and max down the columns of a (2048, 2) array);
+            # leaves of 64 samples: a round's tree built and queried in 76 us instead of
+            # 111 us (16)
+            dist, j = KDTree(dense @ ctrl, leafsize=64).query(points)
+            err = np.mean(np.minimum(dist, np.linalg.norm(b @ ctrl - points, axis=1)))
+            if err < best_err:  # a correction can also fold the parameters: keep the best
+                best, best_err = ctrl, err
+            if best_err <= EXACT or (last is not None and np.array_equal(j, last)):
+                break  # exact, or a fixed point: every later round gives this curve again
+            b, last = dense[j], j
+            ctrl = _lsq(b, points, ends)
     return best, best_err
+
+
+#: Held while OpenMP is limited to one thread (the limit is process-wide).
+_ONE_THREAD = threading.Lock()
+
+
+@functools.cache
+def _openmp_pools() -> ThreadpoolController:
+    """The OpenMP thread pools loaded in this process (pykdtree's among them)."""
+    return ThreadpoolController().select(user_api="openmp")
+
+
+@contextlib.contextmanager
+def _one_openmp_thread():
+    """pykdtree's queries on one OpenMP thread: OpenMP's threads wait for each other
+    whenever another core is busy (a program compiling or running beside the seeds, any
+    other process).  Measured on 2 cores (``benchmarks/seeds_under_load.py``): W1's seeds
+    0.71 s on idle cores either way; beside one busy core 0.71 s on one thread, 1.8-5.3 s
+    on two; f4 at 2000 points 0.78 against 0.67 s idle, 0.79 against 2.2 s beside a busy
+    core.  ``threadpoolctl`` sets the pools' size, and restores it after."""
+    with _ONE_THREAD, _openmp_pools().limit(limits=1):
+        yield
 
 
 def _seed_grid(closed: bool) -> np.ndarray:

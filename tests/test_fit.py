@@ -421,6 +421,38 @@ def test_seed_positions_and_host_map_equal_the_plain_loop():
         host_map(fails, range(20))
 
 
+def test_seed_queries_run_on_one_openmp_thread_and_restore_the_pools(monkeypatch):
+    """The correction rounds' k-d tree queries run with OpenMP's pools at one thread, and
+    the pools get their size back after (also after an error); the seeds equal those
+    found on the pools' own size (the nearest grid samples are exact either way)."""
+    import contextlib
+
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from swarmcurves_jax import seeds
+
+    def sizes():
+        return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "openmp"]
+
+    pts = random_bspline_points(7, 3, False, num_points=150, seed=4)[0]
+    seen, tree = [], seeds.KDTree
+    monkeypatch.setattr(seeds, "KDTree", lambda *a, **k: (seen.append(sizes()), tree(*a, **k))[1])
+    with threadpool_limits(2, user_api="openmp"):
+        assert sizes() and set(sizes()) == {2}  # pykdtree's pool is loaded
+        limited = seeds.least_squares_ctrl(pts, 6, 3, False)
+        assert seen and all(set(s) == {1} for s in seen)
+        assert set(sizes()) == {2}
+        with pytest.raises(RuntimeError, match="inside"):
+            with seeds._one_openmp_thread():
+                raise RuntimeError("inside")
+        assert set(sizes()) == {2}
+        seen.clear()
+        monkeypatch.setattr(seeds, "_one_openmp_thread", contextlib.nullcontext)
+        pooled = seeds.least_squares_ctrl(pts, 6, 3, False)
+        assert seen and all(set(s) == {2} for s in seen)
+    np.testing.assert_array_equal(limited, pooled)
+
+
 def test_the_progress_bar_says_it_is_compiling_until_the_iterations_start(capsys):
     """A first call waits mostly for compilation: the bar says so, then counts iterations
     (the programs of the callback tests, which may be compiled already: the bar says
