@@ -267,8 +267,8 @@ def _corrected(b, dense, points, ends, rounds):
     with _one_openmp_thread():
         for _ in range(rounds + 1):
             # each point's nearest grid sample, exact (pykdtree rather than scipy's cKDTree:
-            # W1's seeds 0.18 -> 0.10 s on two threads; cKDTree spends three quarters of its
-            # build in NumPy's slow min and max down the columns of a (2048, 2) array);
+            # W1's seeds 0.98 -> 0.71 s, both on one thread; cKDTree spends three quarters of
+            # its build in NumPy's slow min and max down the columns of a (2048, 2) array);
             # leaves of 64 samples: a round's tree built and queried in 76 us instead of
             # 111 us (16)
             dist, j = KDTree(dense @ ctrl, leafsize=64).query(points)
