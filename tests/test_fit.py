@@ -437,8 +437,10 @@ def test_seed_queries_run_on_one_openmp_thread_and_restore_the_pools(monkeypatch
     pts = random_bspline_points(7, 3, False, num_points=150, seed=4)[0]
     seen, tree = [], seeds.KDTree
     monkeypatch.setattr(seeds, "KDTree", lambda *a, **k: (seen.append(sizes()), tree(*a, **k))[1])
+    if not sizes():
+        pytest.skip("pykdtree was built without OpenMP: no pool to limit")
     with threadpool_limits(2, user_api="openmp"):
-        assert sizes() and set(sizes()) == {2}  # pykdtree's pool is loaded
+        assert set(sizes()) == {2}
         limited = seeds.least_squares_ctrl(pts, 6, 3, False)
         assert seen and all(set(s) == {1} for s in seen)
         assert set(sizes()) == {2}
