@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import threading
 
 import numpy as np
 from pykdtree.kdtree import KDTree
@@ -282,10 +281,6 @@ def _corrected(b, dense, points, ends, rounds):
     return best, best_err
 
 
-#: Held while OpenMP is limited to one thread (the limit is process-wide).
-_ONE_THREAD = threading.Lock()
-
-
 @functools.cache
 def _openmp_pools() -> ThreadpoolController:
     """The OpenMP thread pools loaded in this process (pykdtree's among them)."""
@@ -299,8 +294,9 @@ def _one_openmp_thread():
     other process).  Measured on 2 cores (``benchmarks/seeds_under_load.py``): W1's seeds
     0.71 s on idle cores either way; beside one busy core 0.71 s on one thread, 1.8-5.3 s
     on two; f4 at 2000 points 0.78 against 0.67 s idle, 0.79 against 2.2 s beside a busy
-    core.  ``threadpoolctl`` sets the pools' size, and restores it after."""
-    with _ONE_THREAD, _openmp_pools().limit(limits=1):
+    core.  ``threadpoolctl`` sets the pools' size, and restores it after; OpenMP keeps
+    that size per thread, so other threads' OpenMP work is untouched."""
+    with _openmp_pools().limit(limits=1):
         yield
 
 

@@ -423,9 +423,11 @@ def test_seed_positions_and_host_map_equal_the_plain_loop():
 
 def test_seed_queries_run_on_one_openmp_thread_and_restore_the_pools(monkeypatch):
     """The correction rounds' k-d tree queries run with OpenMP's pools at one thread, and
-    the pools get their size back after (also after an error); the seeds equal those
-    found on the pools' own size (the nearest grid samples are exact either way)."""
+    the pools get their size back after (also after an error), while another thread's
+    OpenMP keeps its own size; the seeds equal those found on the pools' own size (the
+    nearest grid samples are exact either way)."""
     import contextlib
+    import threading
 
     from threadpoolctl import threadpool_info, threadpool_limits
 
@@ -434,15 +436,30 @@ def test_seed_queries_run_on_one_openmp_thread_and_restore_the_pools(monkeypatch
     def sizes():
         return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "openmp"]
 
+    def sizes_elsewhere():
+        out = []
+        thread = threading.Thread(target=lambda: out.append(sizes()))
+        thread.start()
+        thread.join()
+        return out[0]
+
+    def spy(*args, **kwargs):
+        seen.append(sizes())
+        if not elsewhere:
+            elsewhere.append(sizes_elsewhere())
+        return tree(*args, **kwargs)
+
     pts = random_bspline_points(7, 3, False, num_points=150, seed=4)[0]
-    seen, tree = [], seeds.KDTree
-    monkeypatch.setattr(seeds, "KDTree", lambda *a, **k: (seen.append(sizes()), tree(*a, **k))[1])
+    seen, elsewhere, tree = [], [], seeds.KDTree
+    monkeypatch.setattr(seeds, "KDTree", spy)
     if not sizes():
         pytest.skip("pykdtree was built without OpenMP: no pool to limit")
+    outside = sizes_elsewhere()
     with threadpool_limits(2, user_api="openmp"):
         assert set(sizes()) == {2}
         limited = seeds.least_squares_ctrl(pts, 6, 3, False)
         assert seen and all(set(s) == {1} for s in seen)
+        assert elsewhere == [outside]
         assert set(sizes()) == {2}
         with pytest.raises(RuntimeError, match="inside"):
             with seeds._one_openmp_thread():
