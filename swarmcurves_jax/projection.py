@@ -120,9 +120,11 @@ def _chords(starts, ends):
 EVERY_CHORD_PER_SAMPLE = 20
 
 
-def _nearest_chords(points, samples, top=3):
+def _nearest_chords(points, samples, top=3, chords=None, near=None):
     """Indices of the ``top`` chords ``[samples[i], samples[i+1]]`` nearest to each point,
     (N, top), nearest first, and each one's squared distance to it, (N, top).
+    ``chords`` (:func:`_chords` of the samples) and ``near`` (:func:`_samples_to_settle`):
+    passed where the caller made them already, else made here.
 
     A chord whose two ends lie at least ``R`` from a point is at least
     ``sqrt(R^2 - L^2/4)`` from it (``L``: the longest chord), and a chord within ``r`` has
@@ -141,13 +143,13 @@ def _nearest_chords(points, samples, top=3):
     but 4x slower with both cores busy elsewhere (its OpenMP query waits for its descheduled
     threads).
     """
-    chords = _chords(samples[:-1], samples[1:])
+    chords = _chords(samples[:-1], samples[1:]) if chords is None else chords
     len2 = np.sum(chords[1] ** 2, axis=1)
     out = np.empty((len(points), top), dtype=np.int64)
     out_d2 = np.empty((len(points), top))
     tree = cKDTree(samples, balanced_tree=False, compact_nodes=False)
     quarter = 0.25 * np.max(len2) * (1.0 + 1e-9)  # (L/2)^2, rounded up
-    near = min(_samples_to_settle(len2, top), len(samples))
+    near = min(_samples_to_settle(len2, top) if near is None else near, len(samples))
     chunk = max(1, 8192 * 32 // near)  # bounded temporaries for huge scans
     unsure = [np.arange(0)]
     for lo in range(0, len(points), chunk):
@@ -234,7 +236,7 @@ def distance_to_polyline(points: np.ndarray, vertices: np.ndarray) -> np.ndarray
     chords = _chords(vertices[:-1], vertices[1:])
     near = _samples_to_settle(np.sum(chords[1] ** 2, axis=1), 1)
     if len(vertices) - 1 > EVERY_CHORD_PER_SAMPLE * near:
-        return np.sqrt(_nearest_chords(points, vertices, top=1)[1][:, 0])
+        return np.sqrt(_nearest_chords(points, vertices, 1, chords, near)[1][:, 0])
     rows = max(1, 32768 // (len(vertices) - 1))  # temporaries of 32,768 pairs stay cached
     out = np.empty(len(points))
     for lo in range(0, len(points), rows):

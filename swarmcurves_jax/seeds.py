@@ -292,7 +292,7 @@ def _one_openmp_thread():
     """pykdtree's queries on one OpenMP thread: OpenMP's threads wait for each other
     whenever another core is busy (a program compiling or running beside the seeds, any
     other process).  Measured on 2 cores (``benchmarks/seeds_under_load.py``): W1's seeds
-    0.71 s on idle cores either way; beside one busy core 0.71 s on one thread, 1.8-5.3 s
+    0.71 s on idle cores either way; beside one busy core 0.71 s on one thread, 1.8-7.4 s
     on two; f4 at 2000 points 0.78 against 0.67 s idle, 0.79 against 2.2 s beside a busy
     core.  ``threadpoolctl`` sets the pools' size, and restores it after; OpenMP keeps
     that size per thread, so other threads' OpenMP work is untouched."""
