@@ -16,12 +16,14 @@ import numpy as np
 from .curves import Curve
 from .devices import host_map
 from .launch import Launched
+from .pystack import in_one_chunk
 from .results import FitResult
 from .selection import Candidate, DataShape, Measured, measure, select
 
 __all__ = ["collect", "make_curve"]
 
 
+@in_one_chunk
 def collect(run: Launched) -> list[FitResult]:
     """Wait for a launched call and build its results on the host (true projections)."""
     preps, opts, place, progress = run.preps, run.opts, run.place, run.progress

@@ -20,6 +20,8 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, SingleDeviceSharding
 from jax.sharding import PartitionSpec as P
 
+from .pystack import in_one_chunk
+
 __all__ = ["Placement", "CURVES_AXIS", "cpu_devices", "host_map"]
 
 #: The mesh axis the batch of curves is split along.
@@ -113,4 +115,4 @@ def host_map(fn, items) -> list:
     if workers < 2:
         return [fn(x) for x in items]
     with ThreadPoolExecutor(workers) as pool:
-        return list(pool.map(fn, items))
+        return list(pool.map(in_one_chunk(fn), items))

@@ -27,6 +27,7 @@ from .layout import Layout, search_boxes
 from .objective import CPU_COMPILER_OPTIONS, stack_bases
 from .options import FitOptions
 from .polish import polish_bases, polish_program
+from .pystack import in_one_chunk
 from .search import SWARM_COMPILER_OPTIONS, initial_draws, swarm_program
 from .seeds import seed_positions
 
@@ -93,6 +94,7 @@ TRACING = threading.Lock()
 COMPILING = ": compiling"
 
 
+@in_one_chunk
 def launch(
     preps,
     opts: FitOptions,
@@ -175,7 +177,7 @@ def _start_draws(keys, pair_ids, space: Layout, opts: FitOptions) -> Future:
 def _in_thread(fn, *args, **kwargs) -> Future:
     """``fn(*args, **kwargs)`` started in a thread of its own; its result as a future."""
     pool = ThreadPoolExecutor(1)
-    future = pool.submit(fn, *args, **kwargs)
+    future = pool.submit(in_one_chunk(fn), *args, **kwargs)
     pool.shutdown(wait=False)
     return future
 
@@ -372,7 +374,7 @@ def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, rep
     merged = lambda *a: np.concatenate(a, axis=1)[:, order]  # noqa: E731
     interrupted = False
     with ThreadPoolExecutor(len(parts)) as pool:
-        futures = [pool.submit(run_part, i) for i in range(len(parts))]
+        futures = [pool.submit(in_one_chunk(run_part), i) for i in range(len(parts))]
         try:
             _relay(events, len(parts), opts.chunk_size, report, merged)
         except KeyboardInterrupt:
