@@ -7,7 +7,8 @@ The call (one of ``benchmarks/first_answer.py``'s, or ``W1``) runs once with the
 compilation cache off, and the first program of each kind it makes (the initial draws,
 the swarm, the polish; ``fit_many`` makes one of each per bucket) is kept with its
 arguments; each is then traced, lowered and compiled ``--reps``
-times, JAX's in-memory caches cleared before each.  Per program: the least wall time of
+times, JAX's in-memory caches cleared before each, as a fit makes them (on one chunk of
+CPython's frame stack, :mod:`swarmcurves_jax.pystack`).  Per program: the least wall time of
 each stage, the compilation's CPU time (XLA compiles on every core), and the size of the
 lowered program (lines of StableHLO).  A fresh process's compile events vary by 15 % from
 run to run on a busy 2-core machine; the least of a few repeats in one process, after
@@ -77,11 +78,15 @@ def main(argv=None) -> None:
     os.environ["SWARMCURVES_CACHE_DIR"] = "off"  # before the package is imported
 
     programs = capture(args.call, args.iterations)
+    from swarmcurves_jax.pystack import in_one_chunk
+
+    # as a fit makes them: on one chunk of CPython's frame stack (swarmcurves_jax.pystack)
+    made = in_one_chunk(stages)
     print(f"{args.call}: the least of {args.reps} (median in brackets), {os.cpu_count()} cores")
     print("| program | trace (s) | lower (s) | compile (s) | compile (CPU-s) | StableHLO lines |")
     print("|---|---:|---:|---:|---:|---:|")
     for name, (jitted, call_args, static) in programs.items():
-        runs = [stages(jitted, call_args, static) for _ in range(args.reps)]
+        runs = [made(jitted, call_args, static) for _ in range(args.reps)]
         cells = [
             f"{min(r[k] for r in runs):.2f} ({statistics.median(r[k] for r in runs):.2f})"
             for k in ("trace", "lower", "compile", "cpu")
