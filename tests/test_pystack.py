@@ -1,11 +1,15 @@
 """A call run by ``in_one_chunk`` keeps its Python frames in one chunk of CPython's frame
 stack: calls in and out across a chunk's edge no longer map and unmap fresh memory."""
 
-import resource
 import sys
 import threading
 
 import pytest
+
+try:
+    import resource
+except ImportError:  # not on Windows
+    resource = None
 
 from swarmcurves_jax.pystack import in_one_chunk
 
@@ -28,7 +32,9 @@ def _page_faults(fn) -> tuple[int, object]:
 
 
 @pytest.mark.skipif(
-    not hasattr(resource, "RUSAGE_THREAD") or sys.implementation.name != "cpython",
+    resource is None
+    or not hasattr(resource, "RUSAGE_THREAD")
+    or sys.implementation.name != "cpython",
     reason="counts a thread's page faults (Linux) of CPython's frame stack",
 )
 def test_repeated_deep_calls_map_no_fresh_chunks():
