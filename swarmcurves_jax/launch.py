@@ -27,6 +27,7 @@ from .layout import Layout, search_boxes
 from .objective import CPU_COMPILER_OPTIONS, stack_bases
 from .options import FitOptions
 from .polish import polish_bases, polish_program
+from .prepare import polish_length
 from .pystack import in_one_chunk
 from .search import SWARM_COMPILER_OPTIONS, initial_draws, swarm_program
 from .seeds import seed_positions
@@ -418,7 +419,7 @@ def _relay(events: queue.Queue, count: int, steps: int, report, merged):
 def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement, early=None):
     """Queue the polish of every swarm's solution (:mod:`swarmcurves_jax.polish`), with
     the program ``early`` (an :class:`_EarlyPolish`) made if it was started."""
-    inputs = progress.inputs or place.curves(batch.inputs)
+    inputs = place.curves(_polish_inputs(batch.inputs))
     args = (progress.state, *inputs, place.shared(_polish_shared(batch, opts)))
     run = early.result() if early is not None else None
     if run is None:
@@ -426,6 +427,16 @@ def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement
             polish_program, CPU_COMPILER_OPTIONS, *args, **_polish_static(batch, opts, place)
         )
     return run(*args)
+
+
+def _polish_inputs(inputs: Inputs) -> Inputs:
+    """The host's ``inputs`` as the polish takes them: the points padded further, to
+    :func:`~swarmcurves_jax.prepare.polish_length` (copies of the last, masked out)."""
+    length = inputs.data.shape[1]
+    pad = ((0, 0), (0, polish_length(length) - length))
+    return inputs._replace(
+        data=np.pad(inputs.data, (*pad, (0, 0)), mode="edge"), mask=np.pad(inputs.mask, pad)
+    )
 
 
 def _polish_shared(batch: Batch, opts: FitOptions):
@@ -467,7 +478,7 @@ class _EarlyPolish:
         batch, opts, place = self.batch, self.opts, self.place
         abstract = lambda a: place.abstract(np.shape(a), np.asarray(a).dtype)  # noqa: E731
         state, inputs, shared = jax.tree_util.tree_map(
-            abstract, (batch.state, batch.inputs, _polish_shared(batch, opts))
+            abstract, (batch.state, _polish_inputs(batch.inputs), _polish_shared(batch, opts))
         )
         args, static = (state, *inputs, shared), _polish_static(batch, opts, place)
         with TRACING:  # traced and lowered under the lock; compiled (the kept lowering) outside

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from swarmcurves_jax import Curve, fit, fit_many, fit_stream, make_knots
 from swarmcurves_jax.batch import padding_waste
 from swarmcurves_jax.datasets import random_bspline_points
-from swarmcurves_jax.prepare import bucket_length
+from swarmcurves_jax.prepare import bucket_length, polish_length
 
 OPTS = dict(cps=[4, 6], iterations=60, particles=16)
 
@@ -381,6 +381,8 @@ def test_bucket_lengths_bound_the_padding(n):
     assert b >= n and b % 16 == 0
     assert b - n < 16 if n <= 128 else (b - n) / b < 0.125
     assert bucket_length(b) == b  # a bucket is its own bucket
+    p = polish_length(b)  # the polish's: the next power of two, a bucket of its own
+    assert b <= p < 2 * b and p & (p - 1) == 0 and bucket_length(p) == p
 
 
 @pytest.mark.parametrize(

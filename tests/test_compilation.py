@@ -6,6 +6,7 @@ import jax
 import numpy as np
 
 from swarmcurves_jax import compile_cache, design_matrix, fit, make_knots
+from swarmcurves_jax.datasets import analytic_points
 
 
 def test_mixed_degrees_and_counts_compile_one_program_once(compiles_during):
@@ -45,6 +46,18 @@ def test_a_call_of_the_same_kind_compiles_nothing(compiles_during):
     }
     for name, call in again.items():
         assert compiles_during(call) == [], name
+
+
+def test_a_new_bucket_within_the_polish_length_compiles_only_the_swarm(compiles_during):
+    """180 and 200 points run the swarm in buckets of 192 and 208, the polish in one of 256
+    (``prepare.polish_length``): the second count compiles a swarm program, and the polish
+    it needs is the one the first made."""
+    kwargs = dict(cps=range(4, 7), particles=16, iterations=40, chunk_size=20, seed=1)
+    first = compiles_during(lambda: fit(analytic_points("f4", 200), **kwargs))
+    assert sum("polish_program" in m for m in first) == 1
+    second = compiles_during(lambda: fit(analytic_points("f1", 180), **kwargs))
+    assert sum("swarm_program" in m for m in second) == 1
+    assert not any("polish_program" in m for m in second), second
 
 
 def test_random_keys_and_draws_compile_apart(tmp_path, compiles_during):
