@@ -68,7 +68,6 @@ class Progress(NamedTuple):
     history: tuple  # each chunk's best fitness, (curves, swarms, steps)
     done: int  # iterations run
     stopped: np.ndarray  # per curve, the iteration after which it reached tol (-1: not yet)
-    inputs: Inputs | None  # as placed for the swarm program (None: dealt over devices)
 
 
 class Launched(NamedTuple):
@@ -259,7 +258,7 @@ def chunks(
         mesh=place.mesh,
         batch=place.batch,
     )
-    progress = Progress(state, feet, (), 0, np.full(batch.num, -1), inputs)
+    progress = Progress(state, feet, (), 0, np.full(batch.num, -1))
     draws = None
     while progress.done < opts.iterations and not (stop.is_set() and progress.history):
         args = (progress.state, progress.feet, np.int32(progress.done), *inputs, shared)
@@ -370,7 +369,7 @@ def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, rep
             events.put((i, None, None))  # this part is done (or failed)
         history = np.concatenate([np.asarray(h) for h in progress.history], axis=2)
         state = keep(jax.device_get(progress.state))
-        return progress._replace(state=state, history=history[:, kept], inputs=None)
+        return progress._replace(state=state, history=history[:, kept])
 
     merged = lambda *a: np.concatenate(a, axis=1)[:, order]  # noqa: E731
     interrupted = False
@@ -393,7 +392,6 @@ def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, rep
         history=(merged(*(pad(r.history) for r in ran)),),
         done=done,
         stopped=np.where(np.all(stopped >= 0, axis=0), stopped.max(axis=0), -1),
-        inputs=None,
     )
     return progress, interrupted
 
