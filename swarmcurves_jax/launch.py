@@ -27,7 +27,7 @@ from .layout import Layout, search_boxes
 from .objective import CPU_COMPILER_OPTIONS, stack_bases
 from .options import FitOptions
 from .polish import polish_bases, polish_program
-from .prepare import polish_length
+from .prepare import pad_points, polish_length
 from .pystack import in_one_chunk
 from .search import SWARM_COMPILER_OPTIONS, initial_draws, swarm_program
 from .seeds import seed_positions
@@ -429,12 +429,9 @@ def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement
 
 def _polish_inputs(inputs: Inputs) -> Inputs:
     """The host's ``inputs`` as the polish takes them: the points padded further, to
-    :func:`~swarmcurves_jax.prepare.polish_length` (copies of the last, masked out)."""
-    length = inputs.data.shape[1]
-    pad = ((0, 0), (0, polish_length(length) - length))
-    return inputs._replace(
-        data=np.pad(inputs.data, (*pad, (0, 0)), mode="edge"), mask=np.pad(inputs.mask, pad)
-    )
+    :func:`~swarmcurves_jax.prepare.polish_length`."""
+    data, mask = pad_points(inputs.data, inputs.mask, polish_length(inputs.data.shape[1]))
+    return inputs._replace(data=data, mask=mask)
 
 
 def _polish_shared(batch: Batch, opts: FitOptions):

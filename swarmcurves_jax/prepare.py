@@ -26,6 +26,7 @@ __all__ = [
     "default_num_samples",
     "bucket_length",
     "polish_length",
+    "pad_points",
     "degree_groups",
     "Prepared",
     "prepare",
@@ -86,6 +87,16 @@ def polish_length(length: int) -> int:
     polish program (eight swarm buckets), its run up to 1.8x longer for a bucket just past
     a power of two."""
     return 1 << (length - 1).bit_length()
+
+
+def pad_points(data: np.ndarray, mask: np.ndarray, length: int):
+    """``data`` (..., N, D) and ``mask`` (..., N) padded to ``length`` points: copies of the
+    last point, masked out (0), which every mean, residual and segment of the programs
+    skips; for the swarm's bucket (:func:`bucket_length`) and the polish's
+    (:func:`polish_length`)."""
+    lead = [(0, 0)] * (mask.ndim - 1)
+    extra = (0, length - mask.shape[-1])
+    return np.pad(data, [*lead, extra, (0, 0)], mode="edge"), np.pad(mask, [*lead, extra])
 
 
 def degree_groups(pairs, closed, num_samples=None) -> tuple[tuple[int, int, int, int], ...]:
@@ -183,8 +194,7 @@ def prepare(points, closed: bool, opts: FitOptions, seed, name: str) -> Prepared
         closed=closed,
     )
     ends = fit_pts[[0, -1]] if (opts.fix_ends and not closed) else None
-    length = bucket_length(len(fit_pts))
-    pad = length - len(fit_pts)
+    data, mask = pad_points(fit_pts, np.ones(len(fit_pts)), bucket_length(len(fit_pts)))
     return Prepared(
         points=pts,
         norm_pts=norm_pts,
@@ -194,8 +204,8 @@ def prepare(points, closed: bool, opts: FitOptions, seed, name: str) -> Prepared
         pairs=pairs,
         space=space,
         groups=degree_groups(pairs, closed, opts.num_samples),
-        data=np.concatenate([fit_pts, np.repeat(fit_pts[-1:], pad, axis=0)]).astype(dtype),
-        mask=np.r_[np.ones(len(fit_pts)), np.zeros(pad)].astype(dtype),
+        data=data.astype(dtype),
+        mask=mask.astype(dtype),
         fit_pts=fit_pts,
         ends=ends,
         key_data=np.asarray(jax.random.key_data(key)),

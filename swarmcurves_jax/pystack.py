@@ -4,12 +4,12 @@ CPython 3.11 to 3.13.0 (measured on 3.11.7, 3.12.1 and 3.13.0) keep a thread's P
 frames in chunks of 16 KiB, and give a chunk back to the system (``munmap``) as soon as the
 call that opened it returns: a program that calls in and out across a chunk's edge maps and
 unmaps it every time (CPython issue gh-142183; later 3.13 and 3.14 releases keep one spare
-chunk, and the reserved frame then costs one map and unmap per call).  JAX's tracing does that tens
-of thousands of times per program, and a ``munmap`` made while another thread of the
-process runs on another core interrupts that core too, to flush its address translations
-(dear on a virtual machine).  A fresh process's first ``fit(analytic_points("f4"))`` on 2
-cores unmapped about 72,000 chunks while its threads traced, compiled and ran programs side
-by side.
+chunk, and the reserved frame then costs one map and unmap per call).  JAX's tracing does
+that tens of thousands of times per program, and a ``munmap`` made while another thread of
+the process runs on another core interrupts that core too, to flush its address
+translations (dear on a virtual machine).  A fresh process's first
+``fit(analytic_points("f4"))`` on 2 cores unmapped about 72,000 chunks while its threads
+traced, compiled and ran programs side by side.
 
 :func:`in_one_chunk` runs a call inside one frame that reserves :data:`RESERVED_SLOTS` of
 stack (its code object's stack size; the slots are never written, so their pages never
