@@ -24,7 +24,9 @@ that shapes their trace (this package's source, JAX's version and settings, the 
 the static arguments and the arguments' shapes and types): a later process deserialises
 and calls them without tracing (:func:`program`).  An exported program computes exactly
 what the traced one computes (same curves, bit for bit: ``tests/test_compile_cache.py``).
-They are small (60-90 KB for ``fit(f4)``'s two) and not counted in :data:`MAX_BYTES`.
+They are small (60-150 KB each) and kept to :data:`EXPORTED_SHARE` of JAX's bound, least
+recently used first (:func:`_trim`): every edit of this package and every JAX upgrade makes new
+keys, and the old programs would otherwise stay for good.
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ import functools
 import hashlib
 import os
 import threading
+import time
+import warnings
 from pathlib import Path
 
 import jax
@@ -41,6 +45,7 @@ import jax
 __all__ = [
     "ENV",
     "MAX_BYTES",
+    "EXPORTED_SHARE",
     "MIN_COMPILE_SECONDS",
     "default_dir",
     "use_cache",
@@ -53,6 +58,10 @@ ENV = "SWARMCURVES_CACHE_DIR"
 
 #: The cache's size bound when this package sets it up: about a thousand programs.
 MAX_BYTES = 1 << 30
+
+#: The exported programs take at most this fraction of JAX's cache bound: with
+#: :data:`MAX_BYTES`, 128 MiB, a thousand programs or more.
+EXPORTED_SHARE = 1 / 8
 
 #: The shortest compilation worth keeping.
 MIN_COMPILE_SECONDS = 0.2
@@ -118,8 +127,6 @@ def ensure() -> None:
     try:
         use_cache("default")
     except OSError as exc:  # an unwritable home: compile every time, and say so
-        import warnings
-
         warnings.warn(
             f"swarmcurves_jax: no persistent compilation cache ({exc}); set {ENV} to a "
             "writable folder, or to 'off'",
@@ -238,16 +245,18 @@ def _register_trees() -> None:
 
 
 def _read(path: Path):
-    """The exported program at ``path``, or None (absent or unreadable: made again)."""
+    """The exported program at ``path``, or None (absent or unreadable: made again); a
+    program read is marked used (its time), so that :func:`_trim` keeps it longest."""
     from jax import export
 
     try:
-        return export.deserialize(bytearray(path.read_bytes()))
+        data = path.read_bytes()
     except FileNotFoundError:
         return None
+    _touch(path)
+    try:
+        return export.deserialize(bytearray(data))
     except Exception as exc:  # damaged (e.g. a disk filled while writing): made again
-        import warnings
-
         warnings.warn(
             f"swarmcurves_jax: unreadable exported program {path} ({type(exc).__name__}: "
             f"{exc}); exporting it again",
@@ -257,9 +266,77 @@ def _read(path: Path):
         return None
 
 
+def _touch(path: Path) -> None:
+    """Set ``path``'s time to now; a folder this process may not write is left as it is."""
+    try:
+        os.utime(path)
+    except OSError:
+        pass
+
+
 def _write(path: Path, data: bytes) -> None:
-    """Write ``data`` atomically (another process reads it whole or not at all)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write ``data`` atomically (another process reads it whole or not at all), then
+    :func:`_trim` the folder.  A folder that cannot take it (full, read-only) costs a
+    warning, not the fit: the program runs all the same, a later process exports it again."""
     temporary = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}")
-    temporary.write_bytes(data)
-    os.replace(temporary, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary.write_bytes(data)
+        os.replace(temporary, path)
+    except OSError as exc:
+        warnings.warn(
+            f"swarmcurves_jax: could not keep the exported program {path} ({exc}); a later "
+            "process will trace it again",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        _remove(temporary)
+        return
+    _trim(path.parent, keep=path.name)
+
+
+def _remove(path) -> None:
+    """Remove ``path`` if this process can; gone already (another process) is fine."""
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def _size(path: Path) -> int:
+    """``path``'s size in bytes; 0 if another process removed it meanwhile."""
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return 0
+
+
+#: A temporary file this old is a killed process's, never to be completed.
+STALE_SECONDS = 3600
+
+
+def _trim(folder: Path, keep: str) -> None:
+    """Remove the least recently used exported programs (by their time: written or last
+    read) beyond :data:`EXPORTED_SHARE` of JAX's cache bound (none if JAX's is
+    unbounded), never ``keep``, and the temporary files of writes a killed process left
+    (an hour old).
+    Another process may be trimming too: a file already gone is skipped."""
+    bound = jax.config.jax_compilation_cache_max_size
+    programs, now = [], time.time()
+    for entry in os.scandir(folder):
+        try:
+            stat = entry.stat()
+            if entry.name.startswith(".") and now - stat.st_mtime > STALE_SECONDS:
+                _remove(entry.path)
+            elif entry.name.endswith(".jaxexport") and entry.name != keep:
+                programs.append((stat.st_mtime, stat.st_size, entry.path))
+        except OSError:  # gone meanwhile
+            continue
+    if bound < 0:
+        return
+    total = sum(size for _, size, _ in programs) + _size(folder / keep)
+    for _, size, path in sorted(programs):
+        if total <= bound * EXPORTED_SHARE:
+            break
+        _remove(path)
+        total -= size

@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 
 import jax
 import numpy as np
@@ -141,3 +142,76 @@ def test_use_cache_names_the_folder_and_off_turns_it_off(tmp_path, monkeypatch):
 def test_every_spelling_of_off_is_off(monkeypatch, value):
     monkeypatch.setenv(compile_cache.ENV, value)
     assert compile_cache.default_dir() is None
+
+
+def _exported(folder, name, size, age):
+    """A file shaped like an exported program, last used ``age`` seconds ago."""
+    path = folder / name
+    path.write_bytes(b"x" * size)
+    used = time.time() - age
+    os.utime(path, (used, used))
+    return path
+
+
+def _bound(max_size):
+    """Set JAX's cache bound for the test; returns what to restore."""
+    saved = jax.config.jax_compilation_cache_max_size
+    jax.config.update("jax_compilation_cache_max_size", max_size)
+    return saved
+
+
+def test_exported_programs_beyond_their_share_go_least_recently_used_first(tmp_path):
+    """Every edit of the package and every JAX upgrade makes new exported programs: the
+    folder keeps EXPORTED_SHARE of JAX's bound, the programs used longest ago removed
+    first (a read counts as a use), and a killed write's temporary file once it is old."""
+    folder = tmp_path / "exported"
+    folder.mkdir()
+    real = jax.export.export(jax.jit(lambda x: x + 1))(jax.ShapeDtypeStruct((3,), np.float32))
+    oldest = folder / "oldest.jaxexport"
+    oldest.write_bytes(real.serialize())
+    size = oldest.stat().st_size
+    os.utime(oldest, (time.time() - 400,) * 2)
+    older = _exported(folder, "older.jaxexport", size, 300)
+    old = _exported(folder, "old.jaxexport", size, 200)
+    stale = _exported(folder, ".old.jaxexport.1.2", 10, 2 * compile_cache.STALE_SECONDS)
+    writing = _exported(folder, ".new.jaxexport.3.4", 10, 1)
+    assert compile_cache._read(oldest).in_avals == real.in_avals  # read: now the newest
+    saved = _bound(int(3.5 * size / compile_cache.EXPORTED_SHARE))  # room for three
+    try:
+        compile_cache._write(folder / "new.jaxexport", b"y" * size)
+    finally:
+        jax.config.update("jax_compilation_cache_max_size", saved)
+    left = sorted(p.name for p in folder.iterdir())
+    assert left == [writing.name, "new.jaxexport", old.name, oldest.name]
+    assert not older.exists() and not stale.exists()
+
+
+def test_an_unbounded_cache_keeps_every_exported_program(tmp_path):
+    folder = tmp_path / "exported"
+    folder.mkdir()
+    kept = [_exported(folder, f"p{i}.jaxexport", 1000, 100 * i) for i in range(4)]
+    saved = _bound(-1)
+    try:
+        compile_cache._write(folder / "new.jaxexport", b"y" * 1000)
+    finally:
+        jax.config.update("jax_compilation_cache_max_size", saved)
+    assert all(p.exists() for p in kept) and (folder / "new.jaxexport").exists()
+
+
+def test_a_folder_that_cannot_take_an_exported_program_costs_a_warning(tmp_path, monkeypatch):
+    """A full or read-only disk: the program is exported, used and not kept."""
+    monkeypatch.setattr(compile_cache, "cache_dir", lambda: tmp_path)
+    full = OSError(28, "No space left on device")
+
+    def write_bytes(self, data):
+        raise full
+
+    monkeypatch.setattr(compile_cache.Path, "write_bytes", write_bytes)
+
+    def plus_one(x):
+        return x + 1
+
+    with pytest.warns(RuntimeWarning, match="could not keep the exported program .*No space"):
+        call = compile_cache.program(jax.jit(plus_one), {}, np.zeros(3, np.float32))
+    np.testing.assert_array_equal(call(np.zeros(3, np.float32)), np.ones(3, np.float32))
+    assert list((tmp_path / "exported").iterdir()) == []
