@@ -1,6 +1,7 @@
 """What a user waits for: each call's first answer against its warm time, in fresh processes.
 
     python benchmarks/first_answer.py [--iterations 2000] [--skip cli,w1] [--out DIR]
+                                      [--calls fit_many,...] [--cpu-devices N]
 
 A fresh process (an empty compilation cache in a new cache folder) makes the calls below
 in order, each then repeated in the same process for its warm time; then a second process
@@ -30,7 +31,10 @@ tracing and compiling), and the wall time the whole first call needs at the leas
 time spread over every core; and what a process that only imports the package takes,
 against the command line's example.
 Writes report.md (also printed) and report.json into ``--out`` (default
-``benchmarks/results/first_answer``).
+``benchmarks/results/first_answer``).  ``--calls``: some of the calls only (the command
+line's example needs ``fit(f4)``'s warm time);  ``--cpu-devices N``: the calls run on N
+CPU devices (``jax_num_cpu_devices``), as the many-curves guide advises for batches:
+``fit`` then deals its swarms over them, ``fit_many`` splits its curves over a mesh.
 """
 
 from __future__ import annotations
@@ -112,8 +116,12 @@ class _Compiles:
         self.hits = sum(e == "/jax/compilation_cache/cache_hits" for e, _ in events)
 
 
-def child(names: list[str], iterations: int) -> list[dict]:
+def child(names: list[str], iterations: int, cpu_devices: int = 0) -> list[dict]:
     """Run the calls in this (fresh) process: first and warm time, compile figures."""
+    if cpu_devices:
+        import jax
+
+        jax.config.update("jax_num_cpu_devices", cpu_devices)
     calls = [(name, _call(name, iterations)) for name in names]  # data made before timing
     watch, rows = _Compiles(), []
     for name, call in calls:
@@ -160,8 +168,9 @@ def _env(cache_home: Path) -> dict:
     return dict(env, SWARMCURVES_CACHE_DIR=str(cache_home / "xla"), PYTHONPATH=path)
 
 
-def run_child(names, iterations, cache_home) -> list[dict]:
+def run_child(names, iterations, cache_home, cpu_devices=0) -> list[dict]:
     code = [sys.executable, __file__, "--child", ",".join(names), "--iterations", str(iterations)]
+    code += ["--cpu-devices", str(cpu_devices)]
     done = subprocess.run(code, env=_env(cache_home), capture_output=True, text=True)
     if done.returncode:
         raise SystemExit(f"the child process failed (exit {done.returncode}):\n{done.stderr}")
@@ -180,15 +189,15 @@ def _process(args: list[str], cache_home) -> float:
     return time.perf_counter() - start
 
 
-def measure(iterations: int, skip: set[str]) -> dict:
+def measure(iterations: int, skip: set[str], calls=CALLS, cpu_devices: int = 0) -> dict:
     sessions = {"fresh": [], "second": []}
     with tempfile.TemporaryDirectory() as home:
         for session in sessions:
-            sessions[session] = run_child(list(CALLS), iterations, Path(home))
-        if "cli" not in skip:
+            sessions[session] = run_child(list(calls), iterations, Path(home), cpu_devices)
+        if "cli" not in skip and "fit(f4)" in calls:
             # the example is fit(f4)'s call: its warm time is the lower of the two
             # processes' (one warm run is noisy, and a high one would flatter the ratio)
-            warm = min(rows[0]["warm"] for rows in sessions.values())
+            warm = min(r["warm"] for s in sessions.values() for r in s if r["call"] == "fit(f4)")
             with tempfile.TemporaryDirectory() as cli_home:
                 for session in sessions:
                     seconds = run_cli(Path(cli_home), iterations)
@@ -200,19 +209,20 @@ def measure(iterations: int, skip: set[str]) -> dict:
     if "w1" not in skip:
         with tempfile.TemporaryDirectory() as w1_home:
             for session in sessions:
-                sessions[session] += run_child(["W1"], iterations, Path(w1_home))
+                sessions[session] += run_child(["W1"], iterations, Path(w1_home), cpu_devices)
     return sessions
 
 
-def report(sessions: dict, iterations: int) -> str:
+def report(sessions: dict, iterations: int, cpu_devices: int = 0) -> str:
     import jax
 
     import swarmcurves_jax
 
+    devices = f", the calls on {cpu_devices} CPU devices" if cpu_devices else ""
     lines = [
         "# The first answer against the warm one",
         "",
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, "
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores{devices}, "
         f"JAX {jax.__version__}, swarmcurves_jax {swarmcurves_jax.__version__}; "
         f"{iterations} iterations per call.",
         "",
@@ -301,13 +311,22 @@ def main(argv=None) -> None:
     parser.add_argument("--iterations", type=int, default=2000)
     parser.add_argument("--skip", default="", help="comma-separated: cli, w1")
     parser.add_argument("--out", type=Path, default=REPO / "benchmarks/results/first_answer")
+    parser.add_argument("--calls", default=",".join(CALLS), help=f"comma-separated, of {CALLS}")
+    parser.add_argument("--cpu-devices", type=int, default=0, help="N CPU devices for JAX")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.cpu_devices < 0:
+        parser.error(f"--cpu-devices must be 0 (JAX's default) or more, got {args.cpu_devices}")
     if args.child:
-        print(json.dumps(child(args.child.split(","), args.iterations)))
+        print(json.dumps(child(args.child.split(","), args.iterations, args.cpu_devices)))
         return
-    sessions = measure(args.iterations, set(filter(None, args.skip.split(","))))
-    text = report(sessions, args.iterations)
+    calls = [c.strip() for c in args.calls.split(",") if c.strip()]
+    unknown = [c for c in calls if c not in CALLS]
+    if unknown or not calls:
+        parser.error(f"--calls must name some of {', '.join(CALLS)}; got {args.calls!r}")
+    skip = set(filter(None, args.skip.split(",")))
+    sessions = measure(args.iterations, skip, calls, args.cpu_devices)
+    text = report(sessions, args.iterations, args.cpu_devices)
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "report.md").write_text(text)

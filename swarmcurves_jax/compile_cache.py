@@ -144,17 +144,19 @@ def program(jitted, compiler_options: dict, *args, compile_now: bool = False, **
     :class:`jax.ShapeDtypeStruct`), traced and lowered now; ``compile_now``: compiled too,
     so that its first run does not compile (e.g. made in a thread while other work runs).
 
-    With a cache folder and one device per program (no ``mesh``), it is the exported
-    program: read from the folder, or exported there once (atomically); the call is then
-    ``jax.jit(exported.call, compiler_options=...)``, whose compilation JAX's cache keeps.
+    With a cache folder, it is the exported program: read from the folder, or exported
+    there once (atomically); the call is then ``jax.jit(exported.call, ...)``, whose
+    compilation JAX's cache keeps.  On one device, or on a ``mesh`` of this process's
+    devices (a mesh over several processes keeps the traced program).
     """
     folder = cache_dir()
-    if folder is None or static.get("mesh") is not None:
+    mesh = static.get("mesh")
+    if folder is None or (mesh is not None and mesh.is_multi_process):
         _prepare(jitted.trace(*args, **static), compile_now)
         return functools.partial(jitted, **static)
     key = _key(jitted, args, static)
-    device = _device(args)
-    call = _programs.get((key, device))
+    where = _device(args) if mesh is None else mesh
+    call = _programs.get((key, where))
     if call is None:
         from jax import export
 
@@ -162,17 +164,30 @@ def program(jitted, compiler_options: dict, *args, compile_now: bool = False, **
         path = folder / "exported" / f"{jitted.__name__}-{key}.jaxexport"
         exported = _read(path)
         if exported is None:
-            shapes = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), args)
+            shapes = jax.tree_util.tree_map(
+                lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=_sharding(a, mesh)),
+                args,
+            )
             exported = export.export(jitted)(*shapes, **static)
             _write(path, exported.serialize())
-        # One placement for every call: arguments made on the host and a previous call's
-        # results (committed to the device) then lower alike, and compile once.
-        on = jax.sharding.SingleDeviceSharding(device)
         run = functools.wraps(jitted)(lambda *a: exported.call(*a))  # logs name the program
-        call = jax.jit(run, in_shardings=on, out_shardings=on, compiler_options=compiler_options)
-        _programs[key, device] = call
+        if mesh is None:
+            # One placement for every call: arguments made on the host and a previous
+            # call's results (committed to the device) then lower alike, and compile once.
+            on = jax.sharding.SingleDeviceSharding(where)
+            shardings = dict(in_shardings=on, out_shardings=on)
+        else:  # the arguments are placed on the mesh already, as its results are
+            shardings = {}
+        call = jax.jit(run, compiler_options=compiler_options, **shardings)
+        _programs[key, where] = call
     _prepare(call.trace(*args), compile_now)
     return call
+
+
+def _sharding(a, mesh):
+    """How an argument is split over ``mesh`` (None without one, where the call places
+    it, or for a host scalar, which every device takes whole)."""
+    return None if mesh is None else getattr(a, "sharding", None)
 
 
 def _prepare(traced, compile_now: bool) -> None:
@@ -187,6 +202,9 @@ def _key(jitted, args, static) -> str:
     settings a trace reads), the program, its static arguments, its arguments' types."""
     leaves, tree = jax.tree_util.tree_flatten(args)
     avals = [_aval(a if isinstance(a, jax.ShapeDtypeStruct) else jax.typeof(a)) for a in leaves]
+    mesh = static.get("mesh")
+    if mesh is not None:  # how each argument is split over it
+        avals = [(*aval, str(_sharding(a, mesh))) for aval, a in zip(avals, leaves, strict=True)]
     settings = [v for v in _trace_settings() if isinstance(v, (bool, int, float, str, enum.Enum))]
     parts = [
         _source_hash(),

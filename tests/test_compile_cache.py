@@ -215,3 +215,50 @@ def test_a_folder_that_cannot_take_an_exported_program_costs_a_warning(tmp_path,
         call = compile_cache.program(jax.jit(plus_one), {}, np.zeros(3, np.float32))
     np.testing.assert_array_equal(call(np.zeros(3, np.float32)), np.ones(3, np.float32))
     assert list((tmp_path / "exported").iterdir()) == []
+
+
+# A fresh process of two CPU devices fits two curves, one per device (a mesh), and prints
+# how many programs it exported and the curves.
+MESH_SCRIPT = textwrap.dedent(
+    """
+    import json
+    import jax
+    import numpy as np
+    from swarmcurves_jax import fit_many
+
+    made = []
+    export = jax.export.export
+    jax.export.export = lambda f, **kw: made.append(f.__name__) or export(f, **kw)
+    u = np.linspace(0, 1, 70)
+    sets = [np.c_[u, np.sin(4 * u)], np.c_[u, np.cos(3 * u)]]
+    results = fit_many(sets, cps=[5, 6], particles=8, iterations=20)
+    print(json.dumps({
+        "devices": jax.device_count(),
+        "exported": sorted(made),
+        "curves": [[s.control_points.tolist() for s in r.solutions] for r in results],
+    }))
+    """
+)
+
+
+def test_a_mesh_of_devices_keeps_its_programs_exported_too(tmp_path):
+    """fit_many over several devices (a mesh): its swarm and polish are exported once,
+    and a later process reads them back instead of tracing, for the same curves."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_", "SWARMCURVES_"))}
+    env.update(
+        XDG_CACHE_HOME=str(tmp_path / "home-cache"),
+        XLA_FLAGS="--xla_force_host_platform_device_count=2",
+    )
+    runs = []
+    for _ in range(2):
+        command = [sys.executable, "-c", MESH_SCRIPT]
+        done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr[-3000:]
+        runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    first, second = runs
+    assert first["devices"] == 2 and first["exported"] == ["polish_program", "swarm_program"]
+    assert second["exported"] == [] and second["curves"] == first["curves"]
+    folder = tmp_path / "home-cache" / "swarmcurves_jax" / "xla" / "exported"
+    compile_cache._register_trees()  # our NamedTuples, as a fit registers them
+    programs = [jax.export.deserialize(bytearray(p.read_bytes())) for p in folder.iterdir()]
+    assert sorted(p.nr_devices for p in programs) == [2, 2]
