@@ -135,10 +135,12 @@ def launch(
     stop_reason, interrupted, early = "iterations", False, None
     try:
         parts = _deal(batch, split) if split and place.mesh is None else []
+        early = _EarlyPolish(batch, opts, place)  # made while the swarm compiles
         if len(parts) > 1:
-            progress, interrupted = run_dealt(batch, parts, split, draws, opts, report, place)
+            progress, interrupted = run_dealt(
+                batch, parts, split, draws, opts, report, place, early.start
+            )
         else:
-            early = _EarlyPolish(batch, opts, place)  # made while the swarm compiles
             loop = chunks(batch, draws.result, place, opts, threading.Event(), early.start)
             progress, interrupted = follow(loop, batch.num, opts, place, report)
     except KeyboardInterrupt:
@@ -338,12 +340,15 @@ def _part(batch: Batch, chosen: np.ndarray) -> Batch:
     )
 
 
-def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, report, place):
+def run_dealt(
+    batch: Batch, parts, devices, draws: Future, opts: FitOptions, report, place, traced=None
+):
     """The swarm loop with the swarms ``parts[i]`` on ``devices[i]``, one thread each,
     their chunks reported in call order (each once every part has reached it); then the
     parts' states merged on the host in call order and placed on ``place``.  Returns the
     merged :class:`Progress` and whether Ctrl-C stopped it (the parts then stop after
-    their current chunk)."""
+    their current chunk).  ``traced()``, if given, is called as each part's program has
+    traced (:func:`chunks`)."""
     events, stop = queue.Queue(), threading.Event()
     order = np.argsort(np.concatenate(parts))
 
@@ -359,7 +364,7 @@ def run_dealt(batch: Batch, parts, devices, draws: Future, opts: FitOptions, rep
         device = Placement(device=devices[i])
         try:
             progress, _ = follow(
-                chunks(_part(batch, chosen), drawn, device, opts, stop),
+                chunks(_part(batch, chosen), drawn, device, opts, stop, traced),
                 batch.num,
                 opts,
                 device,
@@ -454,20 +459,25 @@ def _polish_static(batch: Batch, opts: FitOptions, place: Placement) -> dict:
 
 class _EarlyPolish:
     """The polish program of a call, traced, lowered and compiled in a thread from the
-    arguments' shapes once the swarm program has traced: its tracing then overlaps the
-    swarm's compilation and its compilation the swarm's run, instead of both waiting
-    for the swarm's last chunk to be queued.  Not started without a polish, for a mesh
-    (its programs are traced apart), or when ``stage_timings`` times each stage."""
+    arguments' shapes once the swarm program has traced (a dealt call's first part's):
+    its tracing then overlaps the swarm's compilation and its compilation the swarm's
+    run, instead of both waiting for the swarm's last chunk to be queued.  Not started
+    without a polish, for a mesh (its programs are traced apart), or when
+    ``stage_timings`` times each stage."""
 
     def __init__(self, batch: Batch, opts: FitOptions, place: Placement):
         self.batch, self.opts, self.place = batch, opts, place
         self.future: Future | None = None
+        self._once = threading.Lock()
 
     def start(self) -> None:
+        """Start making the program; later calls (the other parts') do nothing."""
         opts, place = self.opts, self.place
         if opts.method is None or place.mesh is not None or opts.stage_timings:
             return
-        self.future = _in_thread(self._make)
+        with self._once:
+            if self.future is None:
+                self.future = _in_thread(self._make)
 
     def _make(self):
         batch, opts, place = self.batch, self.opts, self.place

@@ -260,15 +260,20 @@ def test_fit_split_over_cpu_devices_matches_one_program():
         import json, jax
         jax.config.update("jax_num_cpu_devices", 2)
         import tests.test_batch as tb
+        from swarmcurves_jax import launch
         from swarmcurves_jax.devices import cpu_devices
+        early, make = [], launch._EarlyPolish._make
+        launch._EarlyPolish._make = lambda self: early.append(1) or make(self)
         got, calls = tb._split_fits()
         print(json.dumps({"devices": len(cpu_devices()), "stops": [r.stop_reason for r in got],
                           "solutions": tb._solutions(got), "histories": tb._histories(got),
-                          "calls": calls}))
+                          "calls": calls, "early": len(early)}))
     """
     got = json.loads(_run_script(code, {"PYTHONPATH": os.getcwd()}).splitlines()[-1])
     lone, calls = _split_fits()
     assert got["devices"] == 2
+    # the polished fit's polish made once, while its parts compile and run
+    assert got["early"] == 1
     assert got["stops"] == [r.stop_reason for r in lone] == ["iterations", "tol"]
     assert [at for at, _ in calls] == [50, 100] and lone[1].history.shape[1] == 100
     assert got["calls"] == json.loads(json.dumps(calls))
