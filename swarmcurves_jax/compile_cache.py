@@ -24,9 +24,9 @@ that shapes their trace (this package's source, JAX's version and settings, the 
 the static arguments and the arguments' shapes and types): a later process deserialises
 and calls them without tracing (:func:`program`).  An exported program computes exactly
 what the traced one computes (same curves, bit for bit: ``tests/test_compile_cache.py``).
-They are small (60-150 KB each) and kept to :data:`EXPORTED_SHARE` of JAX's bound, least
-recently used first (:func:`_trim`): every edit of this package and every JAX upgrade makes new
-keys, and the old programs would otherwise stay for good.
+They are small (60-150 KB each) and kept to :data:`EXPORTED_SHARE` of JAX's bound, the
+least recently used removed first (:func:`_trim`): every edit of this package and every
+JAX upgrade makes new keys, and the old programs would otherwise stay for good.
 """
 
 from __future__ import annotations
@@ -337,8 +337,7 @@ def _trim(folder: Path, keep: str) -> None:
     """Remove the least recently used exported programs (by their time: written or last
     read) beyond :data:`EXPORTED_SHARE` of JAX's cache bound (none if JAX's is
     unbounded), never ``keep``, and the temporary files of writes a killed process left
-    (an hour old).
-    Another process may be trimming too: a file already gone is skipped."""
+    (an hour old).  Another process may be trimming too: a file already gone is skipped."""
     bound = jax.config.jax_compilation_cache_max_size
     programs, now = [], time.time()
     for entry in os.scandir(folder):
