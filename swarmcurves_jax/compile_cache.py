@@ -269,12 +269,11 @@ def _read(path: Path):
 
     try:
         data = path.read_bytes()
+        _touch(path)
+        return export.deserialize(bytearray(data))
     except FileNotFoundError:
         return None
-    _touch(path)
-    try:
-        return export.deserialize(bytearray(data))
-    except Exception as exc:  # damaged (e.g. a disk filled while writing): made again
+    except Exception as exc:  # damaged (a disk filled while writing), unreadable: made again
         warnings.warn(
             f"swarmcurves_jax: unreadable exported program {path} ({type(exc).__name__}: "
             f"{exc}); exporting it again",

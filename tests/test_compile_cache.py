@@ -262,3 +262,21 @@ def test_a_mesh_of_devices_keeps_its_programs_exported_too(tmp_path):
     compile_cache._register_trees()  # our NamedTuples, as a fit registers them
     programs = [jax.export.deserialize(bytearray(p.read_bytes())) for p in folder.iterdir()]
     assert sorted(p.nr_devices for p in programs) == [2, 2]
+
+
+def test_an_exported_program_that_cannot_be_read_is_made_again(tmp_path, monkeypatch):
+    """A file this process may not read (another user's folder, say) is not fatal."""
+    monkeypatch.setattr(compile_cache, "cache_dir", lambda: tmp_path)
+
+    def read_bytes(self):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(compile_cache.Path, "read_bytes", read_bytes)
+
+    def minus_one(x):
+        return x - 1
+
+    with pytest.warns(RuntimeWarning, match="unreadable exported program .*Permission denied"):
+        call = compile_cache.program(jax.jit(minus_one), {}, np.ones(3, np.float32))
+    np.testing.assert_array_equal(call(np.ones(3, np.float32)), np.zeros(3, np.float32))
+    assert [p.name.split("-")[0] for p in (tmp_path / "exported").iterdir()] == ["minus_one"]
