@@ -462,7 +462,8 @@ class _EarlyPolish:
     arguments' shapes once the swarm program has traced (a dealt call's first part's):
     its tracing then overlaps the swarm's compilation and its compilation the swarm's
     run, instead of both waiting for the swarm's last chunk to be queued.  Not started
-    without a polish, for a mesh (its programs are traced apart), or when
+    without a polish, for a mesh (``fit_many``'s calls already overlap one call's host
+    work with another's device work: no gain measured, docs/performance.md), or when
     ``stage_timings`` times each stage."""
 
     def __init__(self, batch: Batch, opts: FitOptions, place: Placement):
