@@ -31,6 +31,7 @@ JAX upgrade makes new keys, and the old programs would otherwise stay for good.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import functools
 import hashlib
@@ -269,7 +270,8 @@ def _read(path: Path):
 
     try:
         data = path.read_bytes()
-        _touch(path)
+        with contextlib.suppress(OSError):  # a folder this process may not write
+            os.utime(path)
         return export.deserialize(bytearray(data))
     except FileNotFoundError:
         return None
@@ -281,14 +283,6 @@ def _read(path: Path):
             stacklevel=2,
         )
         return None
-
-
-def _touch(path: Path) -> None:
-    """Set ``path``'s time to now; a folder this process may not write is left as it is."""
-    try:
-        os.utime(path)
-    except OSError:
-        pass
 
 
 def _write(path: Path, data: bytes) -> None:
@@ -314,18 +308,8 @@ def _write(path: Path, data: bytes) -> None:
 
 def _remove(path) -> None:
     """Remove ``path`` if this process can; gone already (another process) is fine."""
-    try:
+    with contextlib.suppress(OSError):
         os.unlink(path)
-    except OSError:
-        pass
-
-
-def _size(path: Path) -> int:
-    """``path``'s size in bytes; 0 if another process removed it meanwhile."""
-    try:
-        return path.stat().st_size
-    except FileNotFoundError:
-        return 0
 
 
 #: A temporary file this old is a killed process's, never to be completed.
@@ -338,19 +322,18 @@ def _trim(folder: Path, keep: str) -> None:
     unbounded), never ``keep``, and the temporary files of writes a killed process left
     (an hour old).  Another process may be trimming too: a file already gone is skipped."""
     bound = jax.config.jax_compilation_cache_max_size
-    programs, now = [], time.time()
+    programs, total, now = [], 0, time.time()
     for entry in os.scandir(folder):
-        try:
+        with contextlib.suppress(OSError):  # gone meanwhile
             stat = entry.stat()
             if entry.name.startswith(".") and now - stat.st_mtime > STALE_SECONDS:
                 _remove(entry.path)
-            elif entry.name.endswith(".jaxexport") and entry.name != keep:
-                programs.append((stat.st_mtime, stat.st_size, entry.path))
-        except OSError:  # gone meanwhile
-            continue
+            elif entry.name.endswith(".jaxexport"):
+                total += stat.st_size
+                if entry.name != keep:
+                    programs.append((stat.st_mtime, stat.st_size, entry.path))
     if bound < 0:
         return
-    total = sum(size for _, size, _ in programs) + _size(folder / keep)
     for _, size, path in sorted(programs):
         if total <= bound * EXPORTED_SHARE:
             break

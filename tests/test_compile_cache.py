@@ -153,14 +153,15 @@ def _exported(folder, name, size, age):
     return path
 
 
-def _bound(max_size):
-    """Set JAX's cache bound for the test; returns what to restore."""
+@pytest.fixture
+def cache_bound():
+    """Sets JAX's cache bound for the test, and restores it after."""
     saved = jax.config.jax_compilation_cache_max_size
-    jax.config.update("jax_compilation_cache_max_size", max_size)
-    return saved
+    yield lambda size: jax.config.update("jax_compilation_cache_max_size", size)
+    jax.config.update("jax_compilation_cache_max_size", saved)
 
 
-def test_exported_programs_beyond_their_share_go_least_recently_used_first(tmp_path):
+def test_exported_programs_beyond_their_share_go_least_recently_used_first(tmp_path, cache_bound):
     """Every edit of the package and every JAX upgrade makes new exported programs: the
     folder keeps EXPORTED_SHARE of JAX's bound, the programs used longest ago removed
     first (a read counts as a use), and a killed write's temporary file once it is old."""
@@ -176,45 +177,20 @@ def test_exported_programs_beyond_their_share_go_least_recently_used_first(tmp_p
     stale = _exported(folder, ".old.jaxexport.1.2", 10, 2 * compile_cache.STALE_SECONDS)
     writing = _exported(folder, ".new.jaxexport.3.4", 10, 1)
     assert compile_cache._read(oldest).in_avals == real.in_avals  # read: now the newest
-    saved = _bound(int(3.5 * size / compile_cache.EXPORTED_SHARE))  # room for three
-    try:
-        compile_cache._write(folder / "new.jaxexport", b"y" * size)
-    finally:
-        jax.config.update("jax_compilation_cache_max_size", saved)
+    cache_bound(int(3.5 * size / compile_cache.EXPORTED_SHARE))  # room for three
+    compile_cache._write(folder / "new.jaxexport", b"y" * size)
     left = sorted(p.name for p in folder.iterdir())
     assert left == [writing.name, "new.jaxexport", old.name, oldest.name]
     assert not older.exists() and not stale.exists()
 
 
-def test_an_unbounded_cache_keeps_every_exported_program(tmp_path):
+def test_an_unbounded_cache_keeps_every_exported_program(tmp_path, cache_bound):
     folder = tmp_path / "exported"
     folder.mkdir()
     kept = [_exported(folder, f"p{i}.jaxexport", 1000, 100 * i) for i in range(4)]
-    saved = _bound(-1)
-    try:
-        compile_cache._write(folder / "new.jaxexport", b"y" * 1000)
-    finally:
-        jax.config.update("jax_compilation_cache_max_size", saved)
+    cache_bound(-1)
+    compile_cache._write(folder / "new.jaxexport", b"y" * 1000)
     assert all(p.exists() for p in kept) and (folder / "new.jaxexport").exists()
-
-
-def test_a_folder_that_cannot_take_an_exported_program_costs_a_warning(tmp_path, monkeypatch):
-    """A full or read-only disk: the program is exported, used and not kept."""
-    monkeypatch.setattr(compile_cache, "cache_dir", lambda: tmp_path)
-    full = OSError(28, "No space left on device")
-
-    def write_bytes(self, data):
-        raise full
-
-    monkeypatch.setattr(compile_cache.Path, "write_bytes", write_bytes)
-
-    def plus_one(x):
-        return x + 1
-
-    with pytest.warns(RuntimeWarning, match="could not keep the exported program .*No space"):
-        call = compile_cache.program(jax.jit(plus_one), {}, np.zeros(3, np.float32))
-    np.testing.assert_array_equal(call(np.zeros(3, np.float32)), np.ones(3, np.float32))
-    assert list((tmp_path / "exported").iterdir()) == []
 
 
 # A fresh process of two CPU devices fits two curves, one per device (a mesh), and prints
@@ -264,19 +240,31 @@ def test_a_mesh_of_devices_keeps_its_programs_exported_too(tmp_path):
     assert sorted(p.nr_devices for p in programs) == [2, 2]
 
 
-def test_an_exported_program_that_cannot_be_read_is_made_again(tmp_path, monkeypatch):
-    """A file this process may not read (another user's folder, say) is not fatal."""
+@pytest.mark.parametrize(
+    "method, error, warning, files",
+    [
+        # a full or read-only disk: the program is exported and used, not kept
+        ("write_bytes", OSError(28, "No space"), "could not keep the exported program", 0),
+        # a file this process may not read (another user's folder): exported again
+        ("read_bytes", PermissionError(13, "Permission denied"), "unreadable exported", 1),
+    ],
+)
+def test_a_folder_that_fails_a_read_or_write_costs_a_warning_not_the_fit(
+    tmp_path, monkeypatch, method, error, warning, files
+):
     monkeypatch.setattr(compile_cache, "cache_dir", lambda: tmp_path)
+    monkeypatch.setattr(compile_cache, "_programs", {})  # none made in this process yet
 
-    def read_bytes(self):
-        raise PermissionError(13, "Permission denied")
+    def fail(self, *args):
+        raise error
 
-    monkeypatch.setattr(compile_cache.Path, "read_bytes", read_bytes)
+    monkeypatch.setattr(compile_cache.Path, method, fail)
 
-    def minus_one(x):
-        return x - 1
+    def plus_one(x):
+        return x + 1
 
-    with pytest.warns(RuntimeWarning, match="unreadable exported program .*Permission denied"):
-        call = compile_cache.program(jax.jit(minus_one), {}, np.ones(3, np.float32))
-    np.testing.assert_array_equal(call(np.ones(3, np.float32)), np.zeros(3, np.float32))
-    assert [p.name.split("-")[0] for p in (tmp_path / "exported").iterdir()] == ["minus_one"]
+    with pytest.warns(RuntimeWarning, match=f"{warning} .*{error.strerror}"):
+        call = compile_cache.program(jax.jit(plus_one), {}, np.zeros(3, np.float32))
+    np.testing.assert_array_equal(call(np.zeros(3, np.float32)), np.ones(3, np.float32))
+    written = [p.name.split("-")[0] for p in (tmp_path / "exported").iterdir()]
+    assert written == ["plus_one"] * files
