@@ -35,6 +35,7 @@ __all__ = [
     "min_excess2",
     "nearest_segments",
     "excess2_at",
+    "first_min_index",
     "NEWTON_STEPS",
 ]
 
@@ -163,7 +164,7 @@ def min_excess2(
 
     By the search's fused running minimum over blocks of segments, for the swarm, which
     evaluates it every iteration.  The polish, which evaluates it a few dozen times, finds
-    each sample's segment by one broadcast ``argmin`` (:func:`nearest_segments`), which
+    each sample's segment by one broadcast minimum (:func:`nearest_segments`), which
     XLA:CPU materialises but compiles in a fraction of the time (measured on ``fit``'s
     first call on f4: the polish compiled and ran in 6.4 s fused, 3.2 s broadcast)."""
     return _min_over_segments(points, centres, halves, 0, allowance2, _EXCESS_COORDS)
@@ -171,7 +172,7 @@ def min_excess2(
 
 def nearest_segments(points, centres, halves, allowance2) -> jax.Array:
     """Which segment gives each point its smallest ``d**2 - allowance2`` (:func:`min_excess2`):
-    (N,) int32, by one broadcast (N, M) ``argmin`` (quick to compile).
+    (N,) int32, by one broadcast (N, M) minimum (:func:`first_min_index`; quick to compile).
 
     The polish's search: piecewise constant in the curve, so kept out of every
     differentiation, as the foot points are; the excess is then differentiated at the
@@ -180,7 +181,7 @@ def nearest_segments(points, centres, halves, allowance2) -> jax.Array:
     (measured, warm: ``fit(f1, cps=range(4, 26), degrees=[2, 3], iterations=60)`` took
     4.7 s instead of 14.6 s, the same curves)."""
     d2 = _excess2(points[:, None, :], centres[None], halves[None], _slopes(halves)[None])
-    return jnp.argmin(d2 - allowance2[None], axis=1).astype(jnp.int32)
+    return first_min_index(d2 - allowance2[None])
 
 
 def excess2_at(points, centres, halves, allowance2, segment) -> jax.Array:
@@ -309,18 +310,31 @@ def _slopes(tangents: jax.Array) -> jax.Array:
 
 
 def _search_dense(points, samples, tangents) -> tuple[jax.Array, jax.Array]:
-    """:func:`_search` as a plain (N, M) ``argmin``, the foot's ``s`` always given."""
+    """:func:`_search` as a plain (N, M) minimum (:func:`first_min_index`), the foot's
+    ``s`` always given."""
     diff = points[:, None, :] - samples[None, :, :]
     along = jnp.sum(diff * tangents[None], axis=2)
     len2 = jnp.sum(tangents**2, axis=1)[None, :]
     s = jnp.clip(along / jnp.maximum(len2, 1e-30), -1.0, 1.0)
     d2 = jnp.sum(diff**2, axis=2) - s * (2.0 * along - s * len2)
-    j = jnp.argmin(d2, axis=1).astype(jnp.int32)
+    j = first_min_index(d2)
     return j, jnp.take_along_axis(s, j[:, None], axis=1)[:, 0]
 
 
+def first_min_index(d2: jax.Array) -> jax.Array:
+    """``jnp.argmin(d2, axis=1)`` (int32; the first NaN where a row has one) by two plain
+    reductions, the minimum and then the least index that reaches it.  ``argmin`` is one
+    reduction of (value, index) pairs, which the elemental emitters the polish compiles
+    with (:data:`~swarmcurves_jax.polish.POLISH_COMPILER_OPTIONS`) do not vectorise: its
+    searches ran 2x as long.  Needs a minimum that propagates NaN (not XLA:CPU's fast
+    ``min``, ``xla_cpu_enable_fast_min_max``)."""
+    low = jnp.min(d2, axis=1, keepdims=True)  # NaN where the row has one
+    at = jax.lax.broadcasted_iota(jnp.int32, d2.shape, 1)
+    return jnp.min(jnp.where((d2 == low) | jnp.isnan(d2), at, d2.shape[1]), axis=1)
+
+
 def nearest_sample_dense(points: jax.Array, samples: jax.Array, tangents: jax.Array) -> jax.Array:
-    """:func:`nearest_sample` as a plain (N, M) ``argmin``: slower to run on XLA:CPU but
+    """:func:`nearest_sample` as a plain (N, M) minimum: slower to run on XLA:CPU but
     about ten times quicker to compile, for code that searches only a few dozen times.
     Its own broadcast formula: :func:`_segment_d2` vmapped over the samples ranked the
     same but made W1's refinement 2.5x slower (0.54 against 0.22 s, measured)."""

@@ -24,9 +24,9 @@ from . import compile_cache, pso
 from .dealing import part_groups, split_swarms, swarm_costs, widen
 from .devices import Placement
 from .layout import Layout, search_boxes
-from .objective import CPU_COMPILER_OPTIONS, stack_bases
+from .objective import stack_bases
 from .options import FitOptions
-from .polish import polish_bases, polish_program
+from .polish import POLISH_COMPILER_OPTIONS, polish_bases, polish_program
 from .prepare import pad_points, polish_length
 from .pystack import in_one_chunk
 from .search import SWARM_COMPILER_OPTIONS, initial_draws, swarm_program
@@ -427,7 +427,7 @@ def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement
     run = early.result() if early is not None else None
     if run is None:
         run = compile_cache.program(
-            polish_program, CPU_COMPILER_OPTIONS, *args, **_polish_static(batch, opts, place)
+            polish_program, POLISH_COMPILER_OPTIONS, *args, **_polish_static(batch, opts, place)
         )
     return run(*args)
 
@@ -488,9 +488,9 @@ class _EarlyPolish:
         )
         args, static = (state, *inputs, shared), _polish_static(batch, opts, place)
         with TRACING:  # traced and lowered under the lock; compiled (the kept lowering) outside
-            compile_cache.program(polish_program, CPU_COMPILER_OPTIONS, *args, **static)
+            compile_cache.program(polish_program, POLISH_COMPILER_OPTIONS, *args, **static)
         return compile_cache.program(
-            polish_program, CPU_COMPILER_OPTIONS, *args, compile_now=True, **static
+            polish_program, POLISH_COMPILER_OPTIONS, *args, compile_now=True, **static
         )
 
     def result(self):

@@ -27,7 +27,13 @@ from .objective import (
 )
 from .prepare import default_num_samples
 
-__all__ = ["REFINE_SAMPLES_PER_SPAN", "REFINE_STARTS", "polish_program", "polish_bases"]
+__all__ = [
+    "POLISH_COMPILER_OPTIONS",
+    "REFINE_SAMPLES_PER_SPAN",
+    "REFINE_STARTS",
+    "polish_program",
+    "polish_bases",
+]
 
 
 #: The refinement's samples per span: it runs a few dozen evaluations, not 2000 x 64,
@@ -38,11 +44,19 @@ REFINE_SAMPLES_PER_SPAN = 16
 #: Starts refined per swarm: its best, its least-squares seed, its next best particles.
 REFINE_STARTS = 4
 
+#: The polish's XLA:CPU settings: the swarm's, with XLA:CPU's elemental emitters instead
+#: of its fusion emitters, which cost about 5 ms of compiler time per fused kernel whatever
+#: its size (the polish has about 200).  Measured on the polish of ``fit(f4)``
+#: (``benchmarks/compile_cost.py``): compiled in 2.6 instead of 3.5 CPU-seconds, run in
+#: 0.21 instead of 0.31 s (its searches by :func:`~swarmcurves_jax.fitness.first_min_index`).
+#: The swarm keeps the fusion emitters, without which it ran 2.2x slower.
+POLISH_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {"xla_cpu_use_fusion_emitters": False}
+
 
 @functools.partial(
     jax.jit,
     static_argnames=("space", "method", "seeded", "groups", "mesh", "batch"),
-    compiler_options=CPU_COMPILER_OPTIONS,
+    compiler_options=POLISH_COMPILER_OPTIONS,
 )
 def polish_program(
     state, boxes, seeds, points, mask, shared, *, space, method, seeded, groups, mesh=None, batch=1

@@ -12,6 +12,7 @@ from swarmcurves_jax import design_matrix, make_knots, normalise
 from swarmcurves_jax.datasets import random_bspline_points, random_nurbs_points
 from swarmcurves_jax.fitness import (
     excess2_at,
+    first_min_index,
     foot_samples,
     min_excess2,
     nearest_sample,
@@ -24,6 +25,7 @@ from swarmcurves_jax.fitness import (
     starts_on_segment,
 )
 from swarmcurves_jax.knots import breakpoints
+from swarmcurves_jax.polish import POLISH_COMPILER_OPTIONS
 from swarmcurves_jax.prepare import default_num_samples
 from swarmcurves_jax.projection import project_points
 from swarmcurves_jax.span_basis import SpanBasis, free_knot_basis, make_span_basis
@@ -38,6 +40,29 @@ def as_jax(basis):
             for x in basis
         )
     )
+
+
+# as the polish compiles it, a few shapes (each compiles once)
+_first_min_index = jax.jit(first_min_index, compiler_options=POLISH_COMPILER_OPTIONS)
+
+
+@given(
+    st.integers(0, 10_000),
+    st.sampled_from([(1, 1), (3, 7), (16, 40), (5, 129)]),
+    st.sampled_from([0.0, 0.3]),
+)
+def test_first_min_index_is_argmin(seed, shape, special):
+    """The index ``jnp.argmin`` gives, exactly: the first of tied minima (values drawn from
+    a few integers, so ties are common), the first NaN of a row that has one, and
+    infinities; ``special`` is the share of NaN and infinite entries."""
+    rng = np.random.default_rng(seed)
+    d2 = rng.integers(-3, 4, shape).astype(np.float32)
+    odd = rng.uniform(size=shape) < special
+    d2[odd] = rng.choice([np.nan, np.inf, -np.inf], size=int(odd.sum()))
+    got = np.asarray(_first_min_index(d2))
+    assert got.dtype == np.int32
+    np.testing.assert_array_equal(got, np.argmin(d2, axis=1))
+    np.testing.assert_array_equal(got, np.asarray(jnp.argmin(d2, axis=1)))
 
 
 # Sample counts around the unrolled blocks (96 samples in 2D, 64 in 3D) and their scan,
