@@ -46,16 +46,11 @@ REFINE_STARTS = 4
 
 #: The polish's XLA:CPU settings: the swarm's, with XLA:CPU's elemental emitters instead
 #: of its fusion emitters, which cost about 5 ms of compiler time per fused kernel whatever
-#: its size (the polish has about 200), and LLVM's optimisation level 1.  Measured on the
-#: polish of ``fit(f4)`` (``benchmarks/compile_cost.py``): compiled in 2.35 CPU-seconds
-#: instead of 3.46 and run in 0.18 s instead of 0.31 (its searches by
-#: :func:`~swarmcurves_jax.fitness.first_min_index`); of 44 swarms, 4.2 instead of 6.4 and
-#: 4.1 s instead of 6.5.  The swarm keeps the fusion emitters, without which it ran 2.2x
-#: slower.
-POLISH_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {
-    "xla_cpu_use_fusion_emitters": False,
-    "xla_backend_optimization_level": 1,
-}
+#: its size (the polish has about 200).  Measured on the polish of ``fit(f4)``
+#: (``benchmarks/compile_cost.py``): compiled in 2.6 instead of 3.5 CPU-seconds, run in
+#: 0.21 instead of 0.31 s (its searches by :func:`~swarmcurves_jax.fitness.first_min_index`).
+#: The swarm keeps the fusion emitters, without which it ran 2.2x slower.
+POLISH_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {"xla_cpu_use_fusion_emitters": False}
 
 
 @functools.partial(
