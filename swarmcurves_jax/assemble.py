@@ -51,13 +51,15 @@ def collect(run: Launched) -> list[FitResult]:
                 if polished is None
                 else Candidate(polished[0][b, i], float(polished[1][b, i]), "polish")
             )
-            fits, polished_seed = [], None
+            fits, polished_seed, last = [], None, None
+            if polished is not None:
+                last = _polished_other(polished, 3, b, i, "polish's last")
             if seeds is not None:
                 fits = _least_squares(seeds[b, i])
-                polished_seed = _polished_seed(polished, b, i)
+                polished_seed = _polished_other(polished, 2, b, i, "polished seed")
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
-            chosen = select(best, other, on_data, data, fits, polished_seed)
+            chosen = select(best, other, on_data, data, fits, polished_seed, last)
             return make_curve(chosen, k, n, int(swarm[2][b, i]), prep)
 
         solutions = host_map(solution, range(len(pairs)))
@@ -83,12 +85,14 @@ def collect(run: Launched) -> list[FitResult]:
     return results
 
 
-def _polished_seed(polished, b: int, i: int) -> Candidate | None:
-    """The swarm's seed as the polish left it, where the polish reported another start."""
-    position = polished[2][b, i]
+def _polished_other(polished, which: int, b: int, i: int, source: str) -> Candidate | None:
+    """Another of the polish's results for swarm ``i`` of curve ``b``
+    (:func:`~swarmcurves_jax.polish.polish_program`: 2 the polished seed, 3 the last
+    iterate of the reported start), where it differs from the reported one."""
+    position = polished[which][b, i]
     if np.array_equal(position, polished[0][b, i]):
         return None
-    return Candidate(position, None, "polished seed")
+    return Candidate(position, None, source)
 
 
 def _least_squares(rows: np.ndarray) -> list[Candidate]:
@@ -129,7 +133,7 @@ def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:
         info={
             "iterations": steps,
             "fitness": m.candidate.fitness,
-            "refined": m.candidate.source in ("polish", "polished seed"),
+            "refined": m.candidate.source in ("polish", "polish's last", "polished seed"),
             "source": m.candidate.source,
             "seed": prep.seed_value,
             "max_excursion": dev.max_excursion,

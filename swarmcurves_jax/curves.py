@@ -63,8 +63,9 @@ class Curve:
         Per-point distances (normalised frame), in the order of the fitted points.
     info : dict
         JSON-safe extras of the fit (iterations run, seed, swarm fitness, ``source``:
-        which candidate was kept, ``"swarm"``, ``"polish"``, ``"polished seed"`` (the seed
-        as the polish left it), or a least-squares fit, ``"seed"`` or ``"classic"``, ...).
+        which candidate was kept, ``"swarm"``, ``"polish"``, ``"polish's last"`` (its last
+        iterate), ``"polished seed"`` (the seed as the polish left it), or a least-squares
+        fit, ``"seed"`` or ``"classic"``, ...).
     """
 
     degree: int

@@ -77,7 +77,7 @@ class Launched(NamedTuple):
     opts: FitOptions
     place: Placement
     progress: Progress
-    polished: tuple | None  # the polish's (positions, fitness), device arrays
+    polished: tuple | None  # the polish's results (polish.polish_program), device arrays
     seeds: np.ndarray  # (curves, swarms, 2, size): the seed and the classic fit, float64
     stop_reason: str
     start: float

@@ -63,8 +63,9 @@ def polish_program(
 ):
     """Polish every swarm of every curve from ``REFINE_STARTS`` starts; per swarm, the
     result with the best hold-out score (:data:`swarmcurves_jax.refine.HOLDOUT_EVERY`),
-    its fitness, and the last start's result, the polished seed where ``seeded`` (the
-    host weighs it too: the hold-out mean, which picks the first, does not see a gap).
+    its fitness, the last start's result, the polished seed where ``seeded`` (the host
+    weighs it too: the hold-out mean, which picks the first, does not see a gap), and the
+    first result's start's last iterate (the host's fallback where it refuses the first).
     Padded points (``mask`` 0) have zero residuals."""
 
     def one_curve(shared, state, boxes, seeds, points, mask):
@@ -112,15 +113,15 @@ def polish_program(
                 jnp.concatenate([mask, extra]),
                 jnp.concatenate([jnp.zeros_like(mask), extra + 1.0]),
             )
-            xs, fs, scores = jax.vmap(lambda x0: polish(problem, x0))(starts)
+            xs, fs, scores, lasts = jax.vmap(lambda x0: polish(problem, x0))(starts)
             i = jnp.argmin(jnp.where(jnp.isnan(scores), jnp.inf, scores))
-            return xs[i], fs[i], xs[-1]
+            return xs[i], fs[i], xs[-1], lasts[i]
 
         return by_degree(one_swarm, groups, bases, pairs, state, boxes, seeds)
 
     per_curve = (state, boxes, seeds, points, mask)
     # one curve's outputs are shaped alike
-    best = (state.best_position, state.best_fitness, state.best_position)
+    best = (state.best_position, state.best_fitness, state.best_position, state.best_position)
     out_like = tuple(jax.ShapeDtypeStruct(a.shape[1:], a.dtype) for a in best)
     return over_curves(one_curve, per_curve, shared, mesh, batch, out_like)
 

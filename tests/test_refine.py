@@ -41,18 +41,37 @@ def test_levenberg_marquardt_recovers_a_perturbed_cubic():
     residuals, search, (x0, free), lo, hi, truth = _problem()
     f0 = float(jax.jit(lambda x: jnp.mean(residuals(x, search(x))))(x0))
     problem = Problem(residuals, search, free, lo, hi)
-    x, f, _ = jax.jit(lambda x0: levenberg_marquardt(problem, x0))(x0)
+    x, f, _, _ = jax.jit(lambda x0: levenberg_marquardt(problem, x0))(x0)
     assert f0 > 5e-3  # a real perturbation
     assert float(f) <= 2e-6
     np.testing.assert_allclose(np.asarray(x).reshape(truth.shape), truth, atol=2e-3)
     np.testing.assert_array_equal(np.asarray(x)[[0, 1, -2, -1]], np.asarray(x0)[[0, 1, -2, -1]])
 
 
+def test_levenberg_marquardt_barely_moves_what_the_residuals_hardly_see():
+    """Residuals ``(x0 - 1, 1e-4 (x1 - 5))`` from ``(0, 0)``: along ``x1`` the curvature
+    is 1e-8 of ``x0``'s, under the damping's floor (``LM_DAMPING_FLOOR``, 1e-5 of the
+    largest), so ``x1`` moves a little each step instead of being solved at once as
+    ``x0`` is: a direction the fit hardly sees is left near where the start put it, not
+    set by what rounding makes of its tiny curvature.  Without the floor the last
+    iterate has ``x1`` at 5.  (The residuals are signed, so the iterate
+    with the least mean is the start: the last iterate is the one to look at.)"""
+
+    def residuals(x, _):
+        return jnp.stack([x[0] - 1.0, 1e-4 * (x[1] - 5.0)])
+
+    ones, inf = jnp.ones(2), jnp.full(2, jnp.inf)
+    problem = Problem(residuals, lambda x: x, ones, -inf, inf)
+    *_, last = jax.jit(lambda x0: levenberg_marquardt(problem, x0))(jnp.zeros(2))
+    assert abs(float(last[0]) - 1.0) < 1e-6
+    assert 0.0 < float(last[1]) < 0.5  # measured: 0.196 after the 40 steps
+
+
 def test_lbfgs_lowers_the_mean_distance_and_keeps_frozen_coordinates():
     residuals, search, (x0, free), lo, hi, truth = _problem()
     f0 = float(jax.jit(lambda x: jnp.mean(residuals(x, search(x))))(x0))
     problem = Problem(residuals, search, free, lo, hi)
-    x, f, _ = jax.jit(lambda x0: lbfgs(problem, x0, steps=100))(x0)
+    x, f, _, _ = jax.jit(lambda x0: lbfgs(problem, x0, steps=100))(x0)
     assert float(f) <= f0 / 5
     np.testing.assert_array_equal(np.asarray(x)[[0, 1, -2, -1]], np.asarray(x0)[[0, 1, -2, -1]])
 
