@@ -112,6 +112,7 @@ def polish_program(
                 jnp.concatenate([holdout, extra]),
                 jnp.concatenate([mask, extra]),
                 jnp.concatenate([jnp.zeros_like(mask), extra + 1.0]),
+                (jnp.arange(free.shape[0]) < space.num_ctrl).astype(free.dtype),
             )
             xs, fs, scores, lasts = jax.vmap(lambda x0: polish(problem, x0))(starts)
             i = jnp.argmin(jnp.where(jnp.isnan(scores), jnp.inf, scores))
