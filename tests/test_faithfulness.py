@@ -320,8 +320,9 @@ def test_a_polished_curve_that_folds_or_opens_a_gap_is_not_kept(polished, kept):
 )
 def test_the_polish_s_last_iterate_stands_in_for_a_refused_polished_curve(polished, last, kept):
     """The polish reports the iterate with the best hold-out score, which can be one with
-    a fold or a step that a later iterate smoothed away (the paper's f2 at 19 control
-    points: turning 2.9 rad more than the last iterate, at the same error).  Where the
+    a fold or a step that a later iterate smoothed away (seen on the paper's f2 at 19
+    control points in one rounding of the polish: turning 2.8 rad more than the last
+    iterate, at the same error).  Where the
     host refuses it, the polish's last iterate is weighed by the same tests, the polished
     curve's fitness standing for its own; where the host keeps it, or the polish did not
     lower the fitness, the last iterate is not weighed (``_select``: the best's mean
