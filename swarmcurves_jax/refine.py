@@ -41,24 +41,21 @@ LM_L2_STEPS, LM_L1_STEPS = 25, 15
 LBFGS_STEPS = 300
 
 #: The least diagonal entry of a free control-point coordinate in LM's normal equations,
-#: as a share of the largest such entry (``Problem.floored``): a coordinate the distances
-#: hardly see (a control point's position along a straight run of data) has its entry
-#: raised to it.  Weights and knots keep their own scale: floored against the control
-#: points', free knots converged more slowly (f1 at 25 control points fell back to its
-#: seed, mean deviation 1.1e-4 against 4.2e-5).  In float32 the normal equations
-#: square the Jacobian's condition, and such a coordinate's step was set by rounding: the
-#: paper's f2 at 19 control points polished into a step 1.5e-3 high in its flat tail
-#: (3.3 radians more turning than the swarm's curve) on one processor and cleanly on
-#: another, and the host reported the swarm's curve (error 5.6e-4, the paper's 4.5e-4).
-#: The floor leaves the stationary points where they are and slows only the raised
-#: coordinates' steps.  Measured on Table 1's 80 fits (``benchmarks/faithfulness.py
-#: --only table1``): f2 at 19 polished cleanly (3.7e-4), 4 of the 80 curves nearer the
-#: truth by more than 5 %, none farther; f2 at 19 fitted alone, 3.66e-4 with XLA's tree
-#: reductions on and off (another rounding of the same polish).  A floor on every
-#: direction (``a + 1e-5 max(diag a) I``) steadied f2 at 19 too but slowed the polish
-#: where it must go far along a weakly seen combination of coordinates: f3's cusp at 11
-#: control points, whose tip lies between two samples, was no longer followed there
-#: (Hausdorff distance to the truth 1.4e-2 against 3.3e-3).
+#: as a share of the largest such entry (``Problem.floored``).  In float32 the normal
+#: equations square the Jacobian's condition, and the step of a coordinate the distances
+#: hardly see (a control point's position along a straight run of data) was set by
+#: rounding: the paper's f2 at 19 control points polished into a step 1.5e-3 high in its
+#: flat tail on one processor and cleanly on another, and the host reported the swarm's
+#: curve (error 5.6e-4, the paper's 4.5e-4).  Raised to the floor, such a coordinate's
+#: steps are slowed; the stationary points stay where they are.  Measured on Table 1's 80
+#: fits (``benchmarks/faithfulness.py --only table1``): f2 at 19 polished cleanly
+#: (3.7e-4), and the same, 3.66e-4, with XLA's tree reductions off (another rounding).
+#: Weights and knots keep their own scale: floored against the control points', free
+#: knots converged more slowly (f1 at 25 fell back to its seed, mean deviation 1.1e-4
+#: against 4.2e-5).  A floor on every direction (``a + 1e-5 max(diag a) I``) steadied f2
+#: at 19 too, but slowed the polish where it must go far along a weakly seen combination
+#: of coordinates: f3's cusp at 11 control points, whose tip lies between two samples, was
+#: no longer followed there (Hausdorff distance to the truth 1.4e-2 against 3.3e-3).
 LM_DIAGONAL_FLOOR = 1e-4
 
 

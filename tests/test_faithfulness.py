@@ -319,14 +319,12 @@ def test_a_polished_curve_that_folds_or_opens_a_gap_is_not_kept(polished, kept):
     ],
 )
 def test_the_polish_s_last_iterate_stands_in_for_a_refused_polished_curve(polished, last, kept):
-    """The polish reports the iterate with the best hold-out score, which can be one with
-    a fold or a step that a later iterate smoothed away (seen on the paper's f2 at 19
-    control points in one rounding of the polish: turning 2.8 rad more than the last
-    iterate, at the same error).  Where the
-    host refuses it, the polish's last iterate is weighed by the same tests, the polished
-    curve's fitness standing for its own; where the host keeps it, or the polish did not
-    lower the fitness, the last iterate is not weighed (``_select``: the best's mean
-    deviation is 2e-4, the data turn 6 rad)."""
+    """The polish reports the iterate with the best hold-out score, which sees neither a
+    fold nor a gap; a later iterate can be the one the host keeps (Table 1's f3 at 14
+    control points).  Where the host refuses the reported one, the polish's last iterate
+    is weighed by the same tests, the polished curve's fitness standing for its own;
+    where the host keeps it, or the polish did not lower the fitness, the last iterate is
+    not weighed (``_select``: the best's mean deviation is 2e-4, the data turn 6 rad)."""
     fitness, mean, turns = polished
     measured = _measured("polished", mean, turns)
     assert _select(polished=(fitness, measured), polished_last=_measured("last", *last)) == kept
