@@ -10,7 +10,11 @@ than a curve that rounds the tip off.  The selection allows for such corners
 and 16 control points, prints each curve's measures and its distance to the true curve
 beside scipy's least-squares spline on the same knots (``make_lsq_spline``, chord-length
 parameters), and draws ``cusp.png``: each curve over the data and the true curve, and
-enlarged at the tip.
+enlarged at the tip.  Then fits f3 as the peers' benchmark does (``cps=[8, 11, 15, 19,
+25]``), where the polish at 11 ties a loop too thin to see at the tip and the host
+refuses it, and draws ``cusp-shortened.png``: the curve reported at 11 with the polish's
+step shortened (``selection.SHORTENED``) and without (``SHORTENED = ()``, the
+least-squares seed reported).
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.interpolate import make_lsq_spline  # noqa: E402
 
-from swarmcurves_jax import fit, make_knots  # noqa: E402
+from swarmcurves_jax import fit, make_knots, selection  # noqa: E402
 from swarmcurves_jax.datasets import analytic_points  # noqa: E402
 from swarmcurves_jax.paper import hausdorff_distance  # noqa: E402
 from swarmcurves_jax.plotting import save_figure  # noqa: E402
@@ -63,6 +67,37 @@ def main() -> None:
         tip.legend(fontsize=8, loc="lower center")
     fig.tight_layout()
     print(f"wrote {save_figure(fig, Path(args.out) / 'cusp.png')}")
+    shortened(points, truth, Path(args.out) / "cusp-shortened.png")
+
+
+def shortened(points: np.ndarray, truth: np.ndarray, path: Path) -> None:
+    """The peers' call at 11 control points, reported with and without the polish's
+    shortened step: drawn whole and at the tip."""
+    kept, curves = selection.SHORTENED, {}
+    for label, steps in (("without the shortened step", ()), ("shortened", kept)):
+        selection.SHORTENED = steps
+        try:
+            c = fit(points, cps=[8, 11, 15, 19, 25], seed=0)[3, 11]
+        finally:
+            selection.SHORTENED = kept
+        curve = c.evaluate(np.linspace(0.0, 1.0, 20_001))
+        curves[label] = (c, curve, hausdorff_distance(curve, truth))
+        print(f"peers' call, n=11, {label}: {c.info['source']}, mean_deviation "
+              f"{c.mean_deviation:.2e}, crossings {c.info['self_crossings']}, Hausdorff "
+              f"distance to the true f3 {curves[label][2]:.2e}")  # fmt: skip
+    fig, axes = plt.subplots(1, 2, figsize=(10, 5))
+    for ax in axes:
+        ax.plot(*truth.T, "-", color="0.75", lw=4, label="true f3")
+        ax.plot(*points.T, "k.-", lw=0.5, ms=3, label="data")
+        for (label, (c, curve, away)), color in zip(curves.items(), ("C0", "C3")):
+            ax.plot(*curve.T, f"{color}-", lw=1.2, label=f"{c.info['source']}: {away:.1e}")
+    axes[0].set_title("f3 at 11 control points, cps=[8, 11, 15, 19, 25]", fontsize=9)
+    axes[1].set_xlim(0.46, 0.54)
+    axes[1].set_ylim(0.75, 1.05)
+    axes[1].set_title("at the tip (legend: Hausdorff distance to the true f3)", fontsize=9)
+    axes[1].legend(fontsize=8, loc="lower center")
+    fig.tight_layout()
+    print(f"wrote {save_figure(fig, path)}")
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ from .devices import host_map
 from .launch import Launched
 from .pystack import in_one_chunk
 from .results import FitResult
-from .selection import Candidate, DataShape, Measured, measure, select
+from .selection import REFINED, Candidate, DataShape, Measured, measure, select
 
 __all__ = ["collect", "make_curve"]
 
@@ -133,7 +133,7 @@ def make_curve(m: Measured, k: int, n: int, steps: int, prep) -> Curve:
         info={
             "iterations": steps,
             "fitness": m.candidate.fitness,
-            "refined": m.candidate.source in ("polish", "polish's last", "polished seed"),
+            "refined": m.candidate.source in REFINED,
             "source": m.candidate.source,
             "seed": prep.seed_value,
             "max_excursion": dev.max_excursion,

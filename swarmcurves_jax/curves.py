@@ -64,8 +64,9 @@ class Curve:
     info : dict
         JSON-safe extras of the fit (iterations run, seed, swarm fitness, ``source``:
         which candidate was kept, ``"swarm"``, ``"polish"``, ``"polish's last"`` (its last
-        iterate), ``"polished seed"`` (the seed as the polish left it), or a least-squares
-        fit, ``"seed"`` or ``"classic"``, ...).
+        iterate), ``"shortened polish"`` (part of the way back to the swarm's),
+        ``"polished seed"`` (the seed as the polish left it), or a least-squares fit,
+        ``"seed"`` or ``"classic"``, ...).
     """
 
     degree: int
