@@ -49,8 +49,15 @@ REFINE_STARTS = 4
 #: its size (the polish has about 200).  Measured on the polish of ``fit(f4)``
 #: (``benchmarks/compile_cost.py``): compiled in 2.6 instead of 3.5 CPU-seconds, run in
 #: 0.21 instead of 0.31 s (its searches by :func:`~swarmcurves_jax.fitness.first_min_index`).
-#: The swarm keeps the fusion emitters, without which it ran 2.2x slower.
-POLISH_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {"xla_cpu_use_fusion_emitters": False}
+#: The swarm keeps the fusion emitters, without which it ran 2.2x slower.  And without
+#: XLA's tree reductions, which split every sum over more than 32 elements into a
+#: windowed sum and a sum of the windows, kernels of their own: compiled in about 0.4
+#: CPU-seconds less and run a third quicker (the sums round otherwise, so the polish
+#: lands elsewhere by rounding; the faithfulness figures held, docs/performance.md).
+POLISH_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {
+    "xla_cpu_use_fusion_emitters": False,
+    "xla_disable_hlo_passes": "tree_reduction_rewriter",
+}
 
 
 @functools.partial(
