@@ -10,11 +10,10 @@ than a curve that rounds the tip off.  The selection allows for such corners
 and 16 control points, prints each curve's measures and its distance to the true curve
 beside scipy's least-squares spline on the same knots (``make_lsq_spline``, chord-length
 parameters), and draws ``cusp.png``: each curve over the data and the true curve, and
-enlarged at the tip.  Then fits f3 as the peers' benchmark does (``cps=[8, 11, 15, 19,
-25]``), where the polish at 11 ties a loop too thin to see at the tip and the host
-refuses it, and draws ``cusp-shortened.png``: the curve reported at 11 with the polish's
-step shortened (``selection.SHORTENED``) and without (``SHORTENED = ()``, the
-least-squares seed reported).
+enlarged at the tip.  Then fits f3 as Table 1's benchmark does (``cps=range(4, 20)``),
+where the polished curve at 14 rises past the true tip and the host refuses it, and
+draws ``cusp-shortened.png``: the curve reported at 14 with the polish's step shortened
+(``selection.SHORTENED``) and without (``SHORTENED = ()``).
 """
 
 from __future__ import annotations
@@ -70,19 +69,19 @@ def main() -> None:
     shortened(points, truth, Path(args.out) / "cusp-shortened.png")
 
 
-def shortened(points: np.ndarray, truth: np.ndarray, path: Path) -> None:
-    """The peers' call at 11 control points, reported with and without the polish's
+def shortened(points: np.ndarray, truth: np.ndarray, path: Path, n: int = 14) -> None:
+    """Table 1's call at ``n`` control points, reported with and without the polish's
     shortened step: drawn whole and at the tip."""
     kept, curves = selection.SHORTENED, {}
     for label, steps in (("without the shortened step", ()), ("shortened", kept)):
         selection.SHORTENED = steps
         try:
-            c = fit(points, cps=[8, 11, 15, 19, 25], seed=0)[3, 11]
+            c = fit(points, cps=range(4, 20), seed=0)[3, n]
         finally:
             selection.SHORTENED = kept
         curve = c.evaluate(np.linspace(0.0, 1.0, 20_001))
         curves[label] = (c, curve, hausdorff_distance(curve, truth))
-        print(f"peers' call, n=11, {label}: {c.info['source']}, mean_deviation "
+        print(f"cps=range(4, 20), n={n}, {label}: {c.info['source']}, mean_deviation "
               f"{c.mean_deviation:.2e}, crossings {c.info['self_crossings']}, Hausdorff "
               f"distance to the true f3 {curves[label][2]:.2e}")  # fmt: skip
     fig, axes = plt.subplots(1, 2, figsize=(10, 5))
@@ -91,7 +90,7 @@ def shortened(points: np.ndarray, truth: np.ndarray, path: Path) -> None:
         ax.plot(*points.T, "k.-", lw=0.5, ms=3, label="data")
         for (label, (c, curve, away)), color in zip(curves.items(), ("C0", "C3")):
             ax.plot(*curve.T, f"{color}-", lw=1.2, label=f"{c.info['source']}: {away:.1e}")
-    axes[0].set_title("f3 at 11 control points, cps=[8, 11, 15, 19, 25]", fontsize=9)
+    axes[0].set_title(f"f3 at {n} control points, cps=range(4, 20)", fontsize=9)
     axes[1].set_xlim(0.46, 0.54)
     axes[1].set_ylim(0.75, 1.05)
     axes[1].set_title("at the tip (legend: Hausdorff distance to the true f3)", fontsize=9)

@@ -51,7 +51,7 @@ REFINE_STARTS = 4
 #: 0.21 instead of 0.31 s (its searches by :func:`~swarmcurves_jax.fitness.first_min_index`).
 #: The swarm keeps the fusion emitters, without which it ran 2.2x slower.  And without
 #: XLA's tree reductions, which split every sum over more than 32 elements into a
-#: windowed sum and a sum of the windows, kernels of their own: compiled in about 0.4
+#: windowed sum and a sum of the windows, kernels of their own: compiled in 0.3-0.5
 #: CPU-seconds less and run a third quicker (the sums round otherwise, so the polish
 #: lands elsewhere by rounding; the faithfulness figures held, docs/performance.md).
 POLISH_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {

@@ -18,7 +18,7 @@ from swarmcurves_jax.measures import Deviations, crossings, deviations, turning
 from swarmcurves_jax.paper import hausdorff_distance
 from swarmcurves_jax.projection import project_points
 from swarmcurves_jax.seeds import least_squares_ctrl, uniform_grid_design
-from swarmcurves_jax.selection import SHORTENED, Candidate, DataShape, select
+from swarmcurves_jax.selection import Candidate, DataShape, select
 
 _segments = jax.jit(data_segments, static_argnums=2)  # one compilation per shape
 
@@ -178,9 +178,10 @@ def test_f3s_cusp_between_two_samples_is_followed_to_its_tip(cps, followed):
     (:func:`~swarmcurves_jax.measures.corners`), the polished curves are reported (seed 0),
     within 3.2e-3 of the true curve both ways (Hausdorff, ``paper.hausdorff_distance``) where
     the curves reported before were about 2.0e-2 (at 11) and 4.3e-2 (at 16) from it.  In
-    the peers' call (``benchmarks/peers_accuracy.py``) the polish at 11 ties a thin loop
-    at the tip, and the reported curve had been the least-squares seed, 4.6e-2 from it;
-    the polish's step shortened unties it (``selection.SHORTENED``)."""
+    the peers' call (``benchmarks/peers_accuracy.py``) the polish at 11 had tied a thin
+    loop at the tip in one rounding (commit 3d017b4's), and the least-squares seed was
+    reported, 4.4e-2 from it, until the polish's step shortened was weighed
+    (``selection.SHORTENED``)."""
     true = analytic_points("f3", 100_001)
     result = fit(analytic_points("f3"), cps=cps, seed=0)
     for n in followed:
