@@ -16,6 +16,7 @@ import numpy as np
 from .curves import Curve
 from .devices import host_map
 from .launch import Launched
+from .polish import Polished
 from .pystack import in_one_chunk
 from .results import FitResult
 from .selection import REFINED, Candidate, DataShape, Measured, measure, select
@@ -30,7 +31,7 @@ def collect(run: Launched) -> list[FitResult]:
     pairs = preps[0].pairs
     state = progress.state
     swarm = place.get((state.best_position, state.best_fitness, state.step))
-    polished = None if run.polished is None else place.get(run.polished)
+    polished = None if run.polished is None else Polished(*place.get(run.polished))
     timings = dict(run.timings)
     if "swarm" in timings:
         if polished is not None:
@@ -49,14 +50,14 @@ def collect(run: Launched) -> list[FitResult]:
             other = (
                 None
                 if polished is None
-                else Candidate(polished[0][b, i], float(polished[1][b, i]), "polish")
+                else Candidate(polished.position[b, i], float(polished.fitness[b, i]), "polish")
             )
             fits, polished_seed, last = [], None, None
             if polished is not None:
-                last = _polished_other(polished, 3, b, i, "polish's last")
+                last = _polished_other(polished.last, polished, b, i, "polish's last")
             if seeds is not None:
                 fits = _least_squares(seeds[b, i])
-                polished_seed = _polished_other(polished, 2, b, i, "polished seed")
+                polished_seed = _polished_other(polished.seed, polished, b, i, "polished seed")
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
             chosen = select(best, other, on_data, data, fits, polished_seed, last)
@@ -85,12 +86,13 @@ def collect(run: Launched) -> list[FitResult]:
     return results
 
 
-def _polished_other(polished, which: int, b: int, i: int, source: str) -> Candidate | None:
-    """Another of the polish's results for swarm ``i`` of curve ``b``
-    (:func:`~swarmcurves_jax.polish.polish_program`: 2 the polished seed, 3 the last
-    iterate of the reported start), where it differs from the reported one."""
-    position = polished[which][b, i]
-    if np.array_equal(position, polished[0][b, i]):
+def _polished_other(
+    positions, polished: Polished, b: int, i: int, source: str
+) -> Candidate | None:
+    """Another of the polish's results (``polished.seed`` or ``polished.last``) for swarm
+    ``i`` of curve ``b``, where it differs from the reported one."""
+    position = positions[b, i]
+    if np.array_equal(position, polished.position[b, i]):
         return None
     return Candidate(position, None, source)
 

@@ -9,6 +9,7 @@ fold term (a fold inside the allowance is a local method's shortcut to a lower d
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -29,6 +30,7 @@ from .prepare import default_num_samples
 
 __all__ = [
     "POLISH_COMPILER_OPTIONS",
+    "Polished",
     "REFINE_SAMPLES_PER_SPAN",
     "REFINE_STARTS",
     "polish_program",
@@ -60,6 +62,17 @@ POLISH_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {
 }
 
 
+class Polished(NamedTuple):
+    """:func:`polish_program`'s outputs, named on the host, each (curves, swarms, ...):
+    the reported result (the best hold-out score) and its fitness, the last start's
+    result (the polished seed where ``seeded``) and the reported start's last iterate."""
+
+    position: object
+    fitness: object
+    seed: object
+    last: object
+
+
 @functools.partial(
     jax.jit,
     static_argnames=("space", "method", "seeded", "groups", "mesh", "batch"),
@@ -68,11 +81,12 @@ POLISH_COMPILER_OPTIONS = CPU_COMPILER_OPTIONS | {
 def polish_program(
     state, boxes, seeds, points, mask, shared, *, space, method, seeded, groups, mesh=None, batch=1
 ):
-    """Polish every swarm of every curve from ``REFINE_STARTS`` starts; per swarm, the
-    result with the best hold-out score (:data:`swarmcurves_jax.refine.HOLDOUT_EVERY`),
-    its fitness, the last start's result, the polished seed where ``seeded`` (the host
-    weighs it too: the hold-out mean, which picks the first, does not see a gap), and the
-    first result's start's last iterate (the host's fallback where it refuses the first).
+    """Polish every swarm of every curve from ``REFINE_STARTS`` starts; per swarm
+    (:class:`Polished`, a plain tuple here), the result with the best hold-out score
+    (:data:`swarmcurves_jax.refine.HOLDOUT_EVERY`), its fitness, the last start's result,
+    the polished seed where ``seeded`` (the host weighs it too: the hold-out mean, which
+    picks the first, does not see a gap), and the first result's start's last iterate
+    (the host's fallback where it refuses the first).
     Padded points (``mask`` 0) have zero residuals."""
 
     def one_curve(shared, state, boxes, seeds, points, mask):
