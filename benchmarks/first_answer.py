@@ -28,8 +28,8 @@ the exported programs are keyed by the package's source).  Prints the targets: f
 every call within 2x its warm time, second process within 1.25x, W1 cold within 2x warm;
 then why, from this run's figures: each fresh call's CPU time beyond its warm call's (the
 tracing and compiling), and the wall time the whole first call needs at the least, its CPU
-time spread over every core; and what a process that only imports the package takes,
-against the command line's example.
+time spread over every core; and what a process that only imports the package and leaves
+(as the command line leaves) takes, against the command line's example.
 Writes report.md (also printed) and report.json into ``--out`` (default
 ``benchmarks/results/first_answer``).  ``--calls``: some of the calls only (the command
 line's example needs ``fit(f4)``'s warm time);  ``--cpu-devices N``: the calls run on N
@@ -201,8 +201,10 @@ def measure(iterations: int, skip: set[str], calls=CALLS, cpu_devices: int = 0) 
             with tempfile.TemporaryDirectory() as cli_home:
                 for session in sessions:
                     seconds = run_cli(Path(cli_home), iterations)
-                    # what any process pays before it fits: Python, JAX and the package
-                    imports = _process(["-c", "import swarmcurves_jax.run"], Path(cli_home))
+                    # what any process pays beside its fit: Python, JAX and the package,
+                    # and leaving as the command line leaves (swarmcurves_jax.run._exit)
+                    bare = "import gc, swarmcurves_jax.run; gc.freeze()"
+                    imports = _process(["-c", bare], Path(cli_home))
                     sessions[session].append(
                         dict(call="command line example", first=seconds, warm=warm, imports=imports)
                     )
@@ -293,7 +295,7 @@ def _why(sessions: dict, cores: int) -> list[str]:
         lines += [
             "",
             f"- The command line's example in a second process: a process that only starts "
-            f"Python and imports the package takes {row['imports']:.2f} s, so the example "
+            f"Python, imports the package and leaves takes {row['imports']:.2f} s, so the example "
             f"takes at least {floor:.2f}x the warm fit it is compared with"
             f"{' (past 1.25x)' if floor > 1.25 else ''}; it took {row['first']:.2f} s "
             f"({row['first'] / row['warm']:.2f}x).",
