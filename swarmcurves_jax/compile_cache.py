@@ -254,10 +254,11 @@ def _register_trees() -> None:
     """The NamedTuples our programs take and return, by name, for serialisation."""
     from jax import export
 
+    from .excursions import Polyline
     from .pso import Box, PSOInfo, PSOParams, PSOState
     from .span_basis import SpanBasis
 
-    for cls in (PSOState, PSOParams, PSOInfo, Box, SpanBasis):
+    for cls in (PSOState, PSOParams, PSOInfo, Box, SpanBasis, Polyline):
         export.register_namedtuple_serialization(
             cls, serialized_name=f"swarmcurves_jax.{cls.__name__}"
         )

@@ -15,6 +15,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .fitness import excess2_at, min_excess2
 from .span_basis import SpanBasis, float32_sum
@@ -23,6 +24,7 @@ __all__ = [
     "ALLOWANCE_BASE",
     "Polyline",
     "data_segments",
+    "data_polylines",
     "sample_excursions",
     "sample_folds",
     "own_segments",
@@ -42,13 +44,14 @@ class Polyline(NamedTuple):
     ``scatter`` (), the mean over the segments of their ends' scatter (the ``rough`` of
     :data:`ALLOWANCE_BASE`): the data's noise, or their sparseness at turns.
     An open polyline's first and last rows stop short of its end points by their
-    allowance, so that the allowance ends there (:func:`data_segments`)."""
+    allowance, so that the allowance ends there.  Made on the host
+    (:func:`data_segments`), an input of the programs."""
 
-    centre: jax.Array
-    half: jax.Array
-    allowance2: jax.Array
-    ahead: jax.Array
-    scatter: jax.Array
+    centre: jax.Array | np.ndarray
+    half: jax.Array | np.ndarray
+    allowance2: jax.Array | np.ndarray
+    ahead: jax.Array | np.ndarray
+    scatter: jax.Array | np.ndarray
 
     @property
     def segments(self) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -71,47 +74,58 @@ class Polyline(NamedTuple):
 ALLOWANCE_BASE = 0.3
 
 
-def data_segments(points: jax.Array, mask: jax.Array, closed: bool) -> Polyline:
+def data_segments(points, mask, closed: bool) -> Polyline:
     """The :class:`Polyline` through the real points (``mask`` 1; padding after them), in
     order, back to the first for a ``closed`` curve; an open one's end segments shortened
-    by their allowance (:func:`_inside_the_ends`)."""
+    by their allowance (:func:`_inside_the_ends`).  On the host, in float64, returned in
+    the points' type: it depends on the data alone, so each program call takes it as an
+    input rather than compiling it into the swarm's and the polish's programs (0.3 and
+    0.1 CPU-s of their compilation, ``benchmarks/compile_cost.py``)."""
+    dtype = np.asarray(points).dtype
+    points = np.asarray(points, np.float64)
     size = points.shape[0]
-    count = jnp.sum(mask).astype(jnp.int32)
-    idx = jnp.arange(size)
+    count = int(np.sum(mask))
+    idx = np.arange(size)
     segments = count if closed else count - 1
-    nxt = jnp.where((idx + 1 < count)[:, None], jnp.roll(points, -1, axis=0), points[0])
+    nxt = np.where((idx + 1 < count)[:, None], np.roll(points, -1, axis=0), points[0])
     vec = nxt - points
-    len2 = jnp.sum(vec * vec, axis=1)
-    unit = vec / jnp.sqrt(jnp.maximum(len2, 1e-30))[:, None]
+    len2 = np.sum(vec * vec, axis=1)
+    unit = vec / np.sqrt(np.maximum(len2, 1e-30))[:, None]
     last = segments - 1
-    before = jnp.where(idx == 0, last if closed else 0, idx - 1)
-    after = jnp.where(idx < last, idx + 1, 0 if closed else idx)
+    before = np.where(idx == 0, last if closed else 0, idx - 1)
+    after = np.where(idx < last, idx + 1, 0 if closed else idx)
 
     def turn(other):  # the angle between each segment and another (0 with itself)
-        return jnp.arccos(jnp.clip(jnp.sum(unit * unit[other], axis=1), -1.0, 1.0))
+        return np.arccos(np.clip(np.sum(unit * unit[other], axis=1), -1.0, 1.0))
 
-    bend = jnp.minimum(jnp.maximum(turn(before), turn(after)), 3.0)
+    bend = np.minimum(np.maximum(turn(before), turn(after)), 3.0)
     # each vertex's distance from the chord of its neighbours (the segment before it
     # and this one): its scatter; at an open curve's ends, none
     chord = vec + vec[before]
-    along = jnp.clip(
-        jnp.sum(vec[before] * chord, axis=1) / jnp.maximum(jnp.sum(chord * chord, axis=1), 1e-30),
+    along = np.clip(
+        np.sum(vec[before] * chord, axis=1) / np.maximum(np.sum(chord * chord, axis=1), 1e-30),
         0.0,
         1.0,
     )
     off = vec[before] - along[:, None] * chord
-    scatter = jnp.where(before != idx, jnp.sqrt(jnp.sum(off * off, axis=1)), 0.0)
-    rough = jnp.maximum(scatter, scatter[after])
-    length = jnp.sqrt(len2)
-    allowance = length * (ALLOWANCE_BASE + 0.5 * jnp.tan(0.25 * bend)) + rough
-    allowance2 = jnp.where(idx < segments, allowance * allowance, -jnp.inf)
+    scatter = np.where(before != idx, np.sqrt(np.sum(off * off, axis=1)), 0.0)
+    rough = np.maximum(scatter, scatter[after])
+    length = np.sqrt(len2)
+    allowance = length * (ALLOWANCE_BASE + 0.5 * np.tan(0.25 * bend)) + rough
+    allowance2 = np.where(idx < segments, allowance * allowance, -np.inf)
     start, end = _inside_the_ends(points, nxt, unit, length, allowance, idx, last, closed)
     half = 0.5 * (end - start)
     # the data's directions at each segment: its own and its two neighbours' either side
-    ahead = [unit[before[before]], unit[before], unit, unit[after], unit[after[after]]]
-    ahead = jnp.stack(ahead, axis=1)
-    noise = float32_sum(jnp.where(idx < segments, rough, 0.0)) * (1.0 / jnp.maximum(segments, 1))
-    return Polyline(start + half, half, allowance2, ahead, noise.astype(points.dtype))
+    ahead = np.stack([unit[before[before]], unit[before], unit, unit[after], unit[after[after]]], 1)
+    noise = np.sum(np.where(idx < segments, rough, 0.0)) / max(segments, 1)
+    line = Polyline(start + half, half, allowance2, ahead, np.asarray(noise))
+    return Polyline(*(a.astype(dtype) for a in line))
+
+
+def data_polylines(points, mask, closed: bool) -> Polyline:
+    """:func:`data_segments` of each curve of a batch (leading axis), stacked."""
+    lines = [data_segments(p, m, closed) for p, m in zip(points, mask)]
+    return Polyline(*(np.stack(parts) for parts in zip(*lines)))
 
 
 def _inside_the_ends(points, nxt, unit, length, allowance, idx, last, closed: bool):
@@ -123,8 +137,8 @@ def _inside_the_ends(points, nxt, unit, length, allowance, idx, last, closed: bo
     a data error of 3.9e-4)."""
     if closed:
         return points, nxt
-    cut_start = jnp.where(idx == 0, jnp.minimum(allowance, length), 0.0)
-    cut_end = jnp.where(idx == last, jnp.minimum(allowance, length - cut_start), 0.0)
+    cut_start = np.where(idx == 0, np.minimum(allowance, length), 0.0)
+    cut_end = np.where(idx == last, np.minimum(allowance, length - cut_start), 0.0)
     return points + cut_start[:, None] * unit, nxt - cut_end[:, None] * unit
 
 

@@ -23,6 +23,7 @@ import numpy as np
 from . import compile_cache, pso
 from .dealing import part_groups, split_swarms, swarm_costs, widen
 from .devices import Placement
+from .excursions import Polyline, data_polylines
 from .layout import Layout, search_boxes
 from .objective import stack_bases
 from .options import FitOptions
@@ -42,6 +43,7 @@ class Inputs(NamedTuple):
     seeds: np.ndarray
     data: np.ndarray
     mask: np.ndarray
+    polyline: Polyline  # through the data, as padded (excursions.data_segments)
 
 
 class Batch(NamedTuple):
@@ -207,7 +209,9 @@ def _host_batch(padded, num: int, keys, pair_ids, opts: FitOptions) -> Batch:
         keys=keys,
         pair_ids=pair_ids,
         state=empty_state(len(padded), len(pairs), opts.particles, space.size, opts.dtype),
-        inputs=Inputs(boxes, seeds[:, :, 0].astype(opts.dtype), stack("data"), stack("mask")),
+        inputs=_inputs(
+            boxes, seeds[:, :, 0].astype(opts.dtype), stack("data"), stack("mask"), space
+        ),
         bases=tuple(
             stack_bases(pairs[i:j], space.closed, samples, space.n_pad, opts.dtype)
             for _, i, j, samples in groups
@@ -422,7 +426,7 @@ def _relay(events: queue.Queue, count: int, steps: int, report, merged):
 def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement, early=None):
     """Queue the polish of every swarm's solution (:mod:`swarmcurves_jax.polish`), with
     the program ``early`` (an :class:`_EarlyPolish`) made if it was started."""
-    inputs = place.curves(_polish_inputs(batch.inputs))
+    inputs = place.curves(_polish_inputs(batch.inputs, batch.space))
     args = (progress.state, *inputs, place.shared(_polish_shared(batch, opts)))
     run = early.result() if early is not None else None
     if run is None:
@@ -432,11 +436,16 @@ def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement
     return run(*args)
 
 
-def _polish_inputs(inputs: Inputs) -> Inputs:
+def _polish_inputs(inputs: Inputs, space: Layout) -> Inputs:
     """The host's ``inputs`` as the polish takes them: the points padded further, to
     :func:`~swarmcurves_jax.prepare.polish_length`."""
     data, mask = pad_points(inputs.data, inputs.mask, polish_length(inputs.data.shape[1]))
-    return inputs._replace(data=data, mask=mask)
+    return _inputs(inputs.boxes, inputs.seeds, data, mask, space)
+
+
+def _inputs(boxes, seeds, data, mask, space: Layout) -> Inputs:
+    """The programs' per-curve inputs, with the polyline through each curve's ``data``."""
+    return Inputs(boxes, seeds, data, mask, data_polylines(data, mask, space.closed))
 
 
 def _polish_shared(batch: Batch, opts: FitOptions):
@@ -484,7 +493,8 @@ class _EarlyPolish:
         batch, opts, place = self.batch, self.opts, self.place
         abstract = lambda a: place.abstract(np.shape(a), np.asarray(a).dtype)  # noqa: E731
         state, inputs, shared = jax.tree_util.tree_map(
-            abstract, (batch.state, _polish_inputs(batch.inputs), _polish_shared(batch, opts))
+            abstract,
+            (batch.state, _polish_inputs(batch.inputs, batch.space), _polish_shared(batch, opts)),
         )
         args, static = (state, *inputs, shared), _polish_static(batch, opts, place)
         with TRACING:  # traced and lowered under the lock; compiled (the kept lowering) outside

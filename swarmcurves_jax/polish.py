@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from . import refine as local
-from .excursions import data_segments, own_segments
+from .excursions import own_segments
 from .layout import Layout
 from .objective import (
     CPU_COMPILER_OPTIONS,
@@ -79,7 +79,20 @@ class Polished(NamedTuple):
     compiler_options=POLISH_COMPILER_OPTIONS,
 )
 def polish_program(
-    state, boxes, seeds, points, mask, shared, *, space, method, seeded, groups, mesh=None, batch=1
+    state,
+    boxes,
+    seeds,
+    points,
+    mask,
+    polyline,
+    shared,
+    *,
+    space,
+    method,
+    seeded,
+    groups,
+    mesh=None,
+    batch=1,
 ):
     """Polish every swarm of every curve from ``REFINE_STARTS`` starts; per swarm
     (:class:`Polished`, a plain tuple here), the result with the best hold-out score
@@ -87,12 +100,12 @@ def polish_program(
     the polished seed where ``seeded`` (the host weighs it too: the hold-out mean, which
     picks the first, does not see a gap), and the first result's start's last iterate
     (the host's fallback where it refuses the first).
-    Padded points (``mask`` 0) have zero residuals."""
+    Padded points (``mask`` 0) have zero residuals; ``polyline``: the points' own
+    (:func:`~swarmcurves_jax.excursions.data_segments`), at the polish's padding."""
 
-    def one_curve(shared, state, boxes, seeds, points, mask):
+    def one_curve(shared, state, boxes, seeds, points, mask, polyline):
         pairs, bases = shared
         holdout = (jnp.arange(points.shape[0]) % local.HOLDOUT_EVERY == 2) * mask
-        polyline = data_segments(points, mask, space.closed)
         count = jnp.sum(mask)
 
         def one_swarm(pair, state, box, seed, basis, k):
@@ -141,7 +154,7 @@ def polish_program(
 
         return by_degree(one_swarm, groups, bases, pairs, state, boxes, seeds)
 
-    per_curve = (state, boxes, seeds, points, mask)
+    per_curve = (state, boxes, seeds, points, mask, polyline)
     # one curve's outputs are shaped alike
     best = (state.best_position, state.best_fitness, state.best_position, state.best_position)
     out_like = tuple(jax.ShapeDtypeStruct(a.shape[1:], a.dtype) for a in best)

@@ -14,7 +14,6 @@ import jax
 import jax.numpy as jnp
 
 from . import pso
-from .excursions import data_segments
 from .fitness import kept
 from .objective import (
     CPU_COMPILER_OPTIONS,
@@ -62,6 +61,7 @@ def swarm_program(
     seeds,
     points,
     mask,
+    polyline,
     shared,
     *,
     space,
@@ -76,15 +76,15 @@ def swarm_program(
     start fresh.  Per curve (leading axis): ``keys`` and ``draws``, each swarm's run key
     data and initial draws (:func:`initial_draws`), ``state``, ``feet`` (the
     last search's starts, (swarms, P, N) floats; ``()`` when ``search_every`` is 1),
-    ``boxes``, ``seeds``, ``points`` (padded to a bucket length) and ``mask`` (1 on real
-    points); ``shared``: ``(pairs, params, bases, tol, max_steps)``; ``first``: the
+    ``boxes``, ``seeds``, ``points`` (padded to a bucket length), ``mask`` (1 on real
+    points) and their ``polyline`` (:func:`~swarmcurves_jax.excursions.data_segments`);
+    ``shared``: ``(pairs, params, bases, tol, max_steps)``; ``first``: the
     iteration this chunk starts at (the searches fall on multiples of ``search_every``).
     """
 
-    def one_curve(shared, key_data, draws, state, feet, boxes, seeds, points, mask):
+    def one_curve(shared, key_data, draws, state, feet, boxes, seeds, points, mask, polyline):
         (pairs, params, bases, tol, max_steps), first = shared
         count = jnp.sum(mask)
-        polyline = data_segments(points, mask, space.closed)
 
         def start(draw, state, box, seed):
             """The swarm's state, fresh where it has not started."""
@@ -148,7 +148,7 @@ def swarm_program(
         )
         return state, feet, jax.tree_util.tree_map(lambda a: a.T, info)  # (swarms, steps)
 
-    per_curve = (keys, draws, state, feet, boxes, seeds, points, mask)
+    per_curve = (keys, draws, state, feet, boxes, seeds, points, mask, polyline)
     return over_curves(one_curve, per_curve, (shared, first), mesh, batch)
 
 

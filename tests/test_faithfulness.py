@@ -3,7 +3,6 @@
 from types import SimpleNamespace
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -20,15 +19,12 @@ from swarmcurves_jax.projection import project_points
 from swarmcurves_jax.seeds import least_squares_ctrl, uniform_grid_design
 from swarmcurves_jax.selection import Candidate, DataShape, select
 
-_segments = jax.jit(data_segments, static_argnums=2)  # one compilation per shape
-
 
 def largest_allowance(points: np.ndarray, closed: bool) -> float:
     """The most the fitness lets a curve stray from any segment of the data polyline
     unpenalised: the sagitta its turning allows, three tenths of the segment
     (:data:`swarmcurves_jax.excursions.ALLOWANCE_BASE`) and the data's scatter."""
-    line = _segments(jnp.asarray(points), jnp.ones(len(points)), closed)
-    a2 = np.asarray(line.allowance2)
+    a2 = data_segments(points, np.ones(len(points)), closed).allowance2
     return float(np.sqrt(np.max(a2[np.isfinite(a2)])))
 
 
@@ -210,15 +206,15 @@ def test_a_sample_running_back_inside_the_allowance_costs_the_room_left():
     running back costs the allowance less its distance, nothing outside the allowance or
     running forward; at a right-angle corner, running along either leg costs nothing."""
     x = np.linspace(0.0, 1.0, 11)
-    line = data_segments(jnp.asarray(np.c_[x, 0 * x]), jnp.ones(11), False)
+    line = data_segments(np.c_[x, 0 * x].astype(np.float32), np.ones(11), False)
     samples = jnp.asarray([[0.45, 0.0], [0.45, 0.0], [0.55, 0.01], [0.55, 0.05]])
     tangents = jnp.asarray([[1.0, 0.0], [-1.0, 0.0], [-1.0, 0.0], [-1.0, 0.0]])
     segment = jnp.asarray([4, 4, 5, 5])
     over = excess2_at(samples, *line.segments, segment)
     folds = np.asarray(sample_folds(tangents, over, line, segment))
     np.testing.assert_allclose(folds, [0.0, 0.03, 0.02, 0.0], atol=1e-6)
-    corner = jnp.asarray([[0.0, 0.0], [0.1, 0.0], [0.2, 0.0], [0.2, 0.1], [0.2, 0.2]])
-    line = data_segments(corner, jnp.ones(5), False)
+    corner = np.array([[0.0, 0.0], [0.1, 0.0], [0.2, 0.0], [0.2, 0.1], [0.2, 0.2]], np.float32)
+    line = data_segments(corner, np.ones(5), False)
     at, segment = jnp.asarray([[0.2, 0.0]] * 2), jnp.asarray([1, 2])
     over = excess2_at(at, *line.segments, segment)
     turned = sample_folds(jnp.asarray([[0.0, 1.0], [1.0, 0.0]]), over, line, segment)

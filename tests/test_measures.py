@@ -1,7 +1,6 @@
 """The two-sided measures (host) and the excursion penalty (device) on curves whose answers
 are known in closed form."""
 
-import functools
 import itertools
 
 import jax
@@ -14,7 +13,6 @@ from hypothesis import strategies as st
 from swarmcurves_jax import Curve
 from swarmcurves_jax.datasets import random_bspline_points
 from swarmcurves_jax.excursions import data_segments, excursion
-from swarmcurves_jax.span_basis import curve_samples, make_span_basis
 from swarmcurves_jax.knots import make_knots
 from swarmcurves_jax.measures import (
     corner_distances,
@@ -28,6 +26,7 @@ from swarmcurves_jax.measures import (
     sample_excursions,
 )
 from swarmcurves_jax.projection import distance_to_polyline, project_points
+from swarmcurves_jax.span_basis import curve_samples, make_span_basis
 
 
 def _measure(curve: Curve, points):
@@ -106,12 +105,12 @@ def _penalty(curve: Curve, points, closed, pad=0):
     mask = np.r_[np.ones(len(points)), np.zeros(pad)]
     basis = make_span_basis(curve.n_ctrl, curve.degree, closed, 64)
     basis = type(basis)(*(jnp.asarray(a) for a in basis))
-    return float(_excursion(jnp.asarray(curve.control_points), basis, pts, mask, closed))
+    line = data_segments(pts.astype(np.float32), mask, closed)
+    return float(_excursion(jnp.asarray(curve.control_points), basis, line))
 
 
-@functools.partial(jax.jit, static_argnames="closed")
-def _excursion(ctrl, basis, pts, mask, closed):
-    line = data_segments(pts, mask, closed)
+@jax.jit
+def _excursion(ctrl, basis, line):
     samples, tangents = curve_samples(ctrl, None, basis)
     return excursion(samples, tangents, basis, line)
 
