@@ -79,8 +79,8 @@ def data_segments(points, mask, closed: bool) -> Polyline:
     order, back to the first for a ``closed`` curve; an open one's end segments shortened
     by their allowance (:func:`_inside_the_ends`).  On the host, in float64, returned in
     the points' type: it depends on the data alone, so each program call takes it as an
-    input rather than compiling it into the swarm's and the polish's programs (0.3 and
-    0.1 CPU-s of their compilation, ``benchmarks/compile_cost.py``)."""
+    input rather than compiling it into the swarm's and the polish's programs (about 0.3
+    and 0.2 CPU-s of their compilation, ``benchmarks/compile_cost.py``)."""
     dtype = np.asarray(points).dtype
     points = np.asarray(points, np.float64)
     size = points.shape[0]
