@@ -54,10 +54,10 @@ def collect(run: Launched) -> list[FitResult]:
             )
             fits, polished_seed, last = [], None, None
             if polished is not None:
-                last = _polished_other(polished.last, polished, b, i, "polish's last")
+                last = _other(polished.last[b, i], other, "polish's last")
             if seeds is not None:
                 fits = _least_squares(seeds[b, i])
-                polished_seed = _polished_other(polished.seed, polished, b, i, "polished seed")
+                polished_seed = _other(polished.seed[b, i], other, "polished seed")
             k, n = pairs[i]
             on_data = lambda c: measure(c, k, n, prep.space, prep.norm_pts)  # noqa: E731
             chosen = select(best, other, on_data, data, fits, polished_seed, last)
@@ -86,13 +86,10 @@ def collect(run: Launched) -> list[FitResult]:
     return results
 
 
-def _polished_other(
-    positions, polished: Polished, b: int, i: int, source: str
-) -> Candidate | None:
-    """Another of the polish's results (``polished.seed`` or ``polished.last``) for swarm
-    ``i`` of curve ``b``, where it differs from the reported one."""
-    position = positions[b, i]
-    if np.array_equal(position, polished.position[b, i]):
+def _other(position, reported: Candidate, source: str) -> Candidate | None:
+    """Another of the polish's results for one swarm (its polished seed or last iterate),
+    where it differs from the ``reported`` one."""
+    if np.array_equal(position, reported.position):
         return None
     return Candidate(position, None, source)
 

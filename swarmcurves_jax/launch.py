@@ -58,6 +58,7 @@ class Batch(NamedTuple):
     pair_ids: np.ndarray  # (swarms, 2): each swarm's (degree, count)
     state: pso.PSOState  # placeholder (step 0): the program initialises it
     inputs: Inputs
+    polish_inputs: Inputs  # the inputs at the polish's padding (:func:`_polish_inputs`)
     bases: tuple  # the search's span bases, one per degree group
     seeds: np.ndarray  # (curves, swarms, 2, size): the seed and the classic fit, float64
 
@@ -201,6 +202,7 @@ def _host_batch(padded, num: int, keys, pair_ids, opts: FitOptions) -> Batch:
     boxes = pso.Box(*(np.stack(parts) for parts in zip(*(built[id(p)][0] for p in padded))))
     stack = lambda field: np.stack([getattr(p, field) for p in padded])  # noqa: E731
     seeds = np.stack([built[id(p)][1] for p in padded])
+    inputs = _inputs(boxes, seeds[:, :, 0].astype(opts.dtype), stack("data"), stack("mask"), space)
     return Batch(
         num=num,
         space=space,
@@ -209,9 +211,8 @@ def _host_batch(padded, num: int, keys, pair_ids, opts: FitOptions) -> Batch:
         keys=keys,
         pair_ids=pair_ids,
         state=empty_state(len(padded), len(pairs), opts.particles, space.size, opts.dtype),
-        inputs=_inputs(
-            boxes, seeds[:, :, 0].astype(opts.dtype), stack("data"), stack("mask"), space
-        ),
+        inputs=inputs,
+        polish_inputs=_polish_inputs(inputs, space),
         bases=tuple(
             stack_bases(pairs[i:j], space.closed, samples, space.n_pad, opts.dtype)
             for _, i, j, samples in groups
@@ -426,7 +427,7 @@ def _relay(events: queue.Queue, count: int, steps: int, report, merged):
 def _polish(batch: Batch, progress: Progress, opts: FitOptions, place: Placement, early=None):
     """Queue the polish of every swarm's solution (:mod:`swarmcurves_jax.polish`), with
     the program ``early`` (an :class:`_EarlyPolish`) made if it was started."""
-    inputs = place.curves(_polish_inputs(batch.inputs, batch.space))
+    inputs = place.curves(batch.polish_inputs)
     args = (progress.state, *inputs, place.shared(_polish_shared(batch, opts)))
     run = early.result() if early is not None else None
     if run is None:
@@ -493,8 +494,7 @@ class _EarlyPolish:
         batch, opts, place = self.batch, self.opts, self.place
         abstract = lambda a: place.abstract(np.shape(a), np.asarray(a).dtype)  # noqa: E731
         state, inputs, shared = jax.tree_util.tree_map(
-            abstract,
-            (batch.state, _polish_inputs(batch.inputs, batch.space), _polish_shared(batch, opts)),
+            abstract, (batch.state, batch.polish_inputs, _polish_shared(batch, opts))
         )
         args, static = (state, *inputs, shared), _polish_static(batch, opts, place)
         with TRACING:  # traced and lowered under the lock; compiled (the kept lowering) outside
