@@ -5,7 +5,7 @@ compilation, each taken afresh several times in one process, the least of them r
 
 The call (one of ``benchmarks/first_answer.py``'s, ``W1``, or one of :data:`MORE_CALLS`)
 runs once with the compilation cache off, and the first program of each kind it makes
-(the initial draws, the swarm, the polish; ``fit_many`` makes one of each per bucket) is
+(the swarm, the polish; ``fit_many`` makes one of each per bucket) is
 kept with the arguments of its first run; each is then traced, lowered and compiled
 ``--reps`` times, JAX's in-memory caches cleared before each, as a fit makes them (on one
 chunk of CPython's frame stack, :mod:`swarmcurves_jax.pystack`), and run ``--reps`` times
@@ -65,17 +65,11 @@ def capture(call_name: str, iterations: int) -> dict:
 
         return first_run
 
-    draws = launch.initial_draws
-
-    def keep_draws(*args, **static):
-        programs.setdefault("initial_draws", (draws, args, static))
-        return draws(*args, **static)
-
-    launch.compile_cache.program, launch.initial_draws = keep, keep_draws
+    launch.compile_cache.program = keep
     try:
         _the_call(call_name, iterations)()
     finally:
-        launch.compile_cache.program, launch.initial_draws = program, draws
+        launch.compile_cache.program = program
     return programs
 
 

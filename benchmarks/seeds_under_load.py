@@ -3,7 +3,7 @@
     python benchmarks/seeds_under_load.py [--repeats 3]
 
 The seeds (:mod:`swarmcurves_jax.seeds`) are built on the host before the swarm starts.
-A first call builds them while its initial draws compile, ``fit_many`` while the previous
+A first call builds them before its programs trace, ``fit_many`` while the previous
 call's program runs, and any other work on the machine takes cores too.  Their correction
 rounds query pykdtree's k-d trees, which run on OpenMP threads.  Prints, for W1's 21
 swarms (f4, 200 points, degrees 1-3, counts 4-10) and f4 at 2000 points (degree 3,

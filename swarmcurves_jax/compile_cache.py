@@ -96,7 +96,7 @@ def use_cache(path: str | os.PathLike | None = "default") -> Path | None:
     Call it before the first fit to take effect for that fit's programs; JAX reads the
     folder once, at its first compilation that consults the cache.  Programs that compile
     in :data:`MIN_COMPILE_SECONDS` or more are kept (JAX's default, 1 s, would leave out
-    the initial draws' 0.3 s)."""
+    a small call's programs, e.g. a polygon's swarm)."""
     global _decided
     with _lock:
         _decided = True

@@ -23,6 +23,7 @@ import numpy as np
 from . import compile_cache, pso
 from .dealing import part_groups, split_swarms, swarm_costs, widen
 from .devices import Placement
+from .draws import initial_draws
 from .excursions import Polyline, data_polylines
 from .layout import Layout, search_boxes
 from .objective import stack_bases
@@ -30,7 +31,7 @@ from .options import FitOptions
 from .polish import POLISH_COMPILER_OPTIONS, polish_bases, polish_program
 from .prepare import pad_points, polish_length
 from .pystack import in_one_chunk
-from .search import SWARM_COMPILER_OPTIONS, initial_draws, swarm_program
+from .search import SWARM_COMPILER_OPTIONS, swarm_program
 from .seeds import seed_positions
 
 __all__ = ["Batch", "Inputs", "Progress", "Launched", "launch", "chunks", "follow", "run_dealt"]
@@ -54,7 +55,7 @@ class Batch(NamedTuple):
     space: Layout
     pairs: list
     groups: tuple
-    keys: np.ndarray  # (curves, key data): each curve's key
+    draws: tuple  # each swarm's run key data and initial draws (:mod:`~swarmcurves_jax.draws`)
     pair_ids: np.ndarray  # (swarms, 2): each swarm's (degree, count)
     state: pso.PSOState  # placeholder (step 0): the program initialises it
     inputs: Inputs
@@ -131,20 +132,17 @@ def launch(
     padded = preps + [preps[0]] * (size - num)  # the padding repeats the first curve
     keys = np.stack([p.key_data for p in padded])
     pair_ids = np.array(preps[0].pairs, np.int32)
-    draws = _start_draws(keys, pair_ids, preps[0].space, opts)  # runs while seeds are built
     batch = _host_batch(padded, num, keys, pair_ids, opts)
-    timings = {"setup": time.perf_counter() - start}  # the host's seeds, boxes and bases
+    timings = {"setup": time.perf_counter() - start}  # the host's draws, seeds, boxes, bases
     report = _reporter(batch, opts, callback, bar)
     stop_reason, interrupted, early = "iterations", False, None
     try:
         parts = _deal(batch, split) if split and place.mesh is None else []
         early = _EarlyPolish(batch, opts, place)  # made while the swarm compiles
         if len(parts) > 1:
-            progress, interrupted = run_dealt(
-                batch, parts, split, draws, opts, report, place, early.start
-            )
+            progress, interrupted = run_dealt(batch, parts, split, opts, report, place, early.start)
         else:
-            loop = chunks(batch, draws.result, place, opts, threading.Event(), early.start)
+            loop = chunks(batch, place, opts, threading.Event(), early.start)
             progress, interrupted = follow(loop, batch.num, opts, place, report)
     except KeyboardInterrupt:
         progress = None
@@ -162,20 +160,6 @@ def launch(
         polished = _polish(batch, progress, opts, place, early)
     return Launched(
         preps, opts, place, progress, polished, batch.seeds, stop_reason, start, timings
-    )
-
-
-def _start_draws(keys, pair_ids, space: Layout, opts: FitOptions) -> Future:
-    """Every swarm's run key and initial draws (:func:`~swarmcurves_jax.search.initial_draws`),
-    compiled and run in a thread while the host builds the seeds and the swarm program
-    traces (XLA compiles outside Python's lock).  The draws stay on the device."""
-    return _in_thread(
-        initial_draws,
-        keys,
-        pair_ids,
-        num_particles=opts.particles,
-        size=space.size,
-        dtype=opts.dtype,
     )
 
 
@@ -208,7 +192,9 @@ def _host_batch(padded, num: int, keys, pair_ids, opts: FitOptions) -> Batch:
         space=space,
         pairs=pairs,
         groups=groups,
-        keys=keys,
+        draws=initial_draws(
+            keys, pair_ids, num_particles=opts.particles, size=space.size, dtype=opts.dtype
+        ),
         pair_ids=pair_ids,
         state=empty_state(len(padded), len(pairs), opts.particles, space.size, opts.dtype),
         inputs=inputs,
@@ -240,17 +226,16 @@ def empty_state(num_curves, num_swarms, num_particles, dim, dtype) -> pso.PSOSta
 
 
 def chunks(
-    batch: Batch, drawn, place: Placement, opts: FitOptions, stop, traced=None
+    batch: Batch, place: Placement, opts: FitOptions, stop, traced=None
 ) -> Iterator[Progress]:
     """The swarm loop of ``batch`` on ``place``: one :class:`Progress` per chunk, queued
-    (not waited for), until the iterations are done or ``stop`` is set.  ``drawn()``: the
-    batch's initial draws, waited for only once the program has traced; ``traced()``, if
-    given, is called then too (before the program compiles)."""
+    (not waited for), until the iterations are done or ``stop`` is set.  ``traced()``, if
+    given, is called once the program has traced (before it compiles)."""
     dtype, lead = opts.dtype, batch.inputs.seeds.shape[:2]
     feet = ()  # the last search's starts, carried only when a search is reused
     if opts.search_every > 1:
         feet = np.zeros((*lead, opts.particles, batch.inputs.data.shape[1]), dtype)
-    state, feet, inputs = place.curves((batch.state, feet, batch.inputs))
+    state, feet, draws, inputs = place.curves((batch.state, feet, batch.draws, batch.inputs))
     tol = np.asarray(-1.0 if opts.tol is None else opts.tol, dtype)
     params = pso.PSOParams(*(np.asarray(p, dtype) for p in opts.params))
     max_steps = np.asarray(opts.iterations, np.int32)
@@ -266,22 +251,15 @@ def chunks(
         batch=place.batch,
     )
     progress = Progress(state, feet, (), 0, np.full(batch.num, -1))
-    draws = None
+    run = None
     while progress.done < opts.iterations and not (stop.is_set() and progress.history):
-        args = (progress.state, progress.feet, np.int32(progress.done), *inputs, shared)
-        if draws is None:
-            abstract = (
-                place.abstract((*lead, batch.keys.shape[1]), np.uint32),
-                place.abstract((*lead, opts.particles, batch.space.size), dtype),
-            )
+        args = (*draws, progress.state, progress.feet, np.int32(progress.done), *inputs, shared)
+        if run is None:
             with TRACING:  # the first call's trace and lowering, kept for it
-                run = compile_cache.program(
-                    swarm_program, SWARM_COMPILER_OPTIONS, *abstract, *args, **static
-                )
+                run = compile_cache.program(swarm_program, SWARM_COMPILER_OPTIONS, *args, **static)
             if traced is not None:
                 traced()
-            draws = place.curves(drawn())
-        state, feet, info = run(*draws, *args)
+        state, feet, info = run(*args)
         history = progress.history + (info.best_fitness,)
         progress = progress._replace(
             state=state, feet=feet, history=history, done=progress.done + steps
@@ -336,6 +314,7 @@ def _part(batch: Batch, chosen: np.ndarray) -> Batch:
         pairs=[batch.pairs[i] for i in chosen],
         groups=groups,
         pair_ids=batch.pair_ids[chosen],
+        draws=pick(batch.draws),
         state=pick(batch.state),
         inputs=batch.inputs._replace(
             boxes=pick(batch.inputs.boxes), seeds=batch.inputs.seeds[:, chosen]
@@ -345,9 +324,7 @@ def _part(batch: Batch, chosen: np.ndarray) -> Batch:
     )
 
 
-def run_dealt(
-    batch: Batch, parts, devices, draws: Future, opts: FitOptions, report, place, traced=None
-):
+def run_dealt(batch: Batch, parts, devices, opts: FitOptions, report, place, traced=None):
     """The swarm loop with the swarms ``parts[i]`` on ``devices[i]``, one thread each,
     their chunks reported in call order (each once every part has reached it); then the
     parts' states merged on the host in call order and placed on ``place``.  Returns the
@@ -362,14 +339,11 @@ def run_dealt(
         kept = np.unique(chosen, return_index=True)[1]  # the copies' results are dropped
         keep = lambda tree: jax.tree_util.tree_map(lambda a: a[:, kept], tree)  # noqa: E731
 
-        def drawn():  # this part's swarms of the draws (host memory: a CPU device's own)
-            return jax.tree_util.tree_map(lambda a: a[:, chosen], jax.device_get(draws.result()))
-
         say = None if report is None else (lambda at, best: events.put((i, at, best[:, kept])))
         device = Placement(device=devices[i])
         try:
             progress, _ = follow(
-                chunks(_part(batch, chosen), drawn, device, opts, stop, traced),
+                chunks(_part(batch, chosen), device, opts, stop, traced),
                 batch.num,
                 opts,
                 device,

@@ -112,8 +112,8 @@ def init(
 
 def init_from_uniforms(u: jax.Array, box: Box, seed_position: jax.Array | None = None) -> PSOState:
     """:func:`init` from its U[0, 1) draws ``u`` (P, dim), made elsewhere: ``fit`` draws
-    them in a small program of their own, since threefry compiled into each swarm program
-    cost it about 1 s of compilation (measured on XLA:CPU)."""
+    them on the host (:mod:`swarmcurves_jax.draws`), since threefry compiled into each
+    swarm program cost it about 1 s of compilation (measured on XLA:CPU)."""
     pos = _scale_to_init_box(u, box)
     num_particles = u.shape[0]
     if seed_position is not None:

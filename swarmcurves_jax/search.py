@@ -1,9 +1,8 @@
 """The search stage: every swarm of every curve of a call, as one compiled program.
 
 :func:`swarm_program` runs a chunk of PSO iterations (:mod:`swarmcurves_jax.pso`) for every
-(degree, count) swarm of every curve, each particle scored by :mod:`.objective`;
-:func:`initial_draws` makes each swarm's random stream from its curve's key, its degree and
-its count alone.
+(degree, count) swarm of every curve, each particle scored by :mod:`.objective`, from each
+swarm's random stream (:mod:`.draws`: its curve's key, its degree and its count alone).
 """
 
 from __future__ import annotations
@@ -27,7 +26,7 @@ from .objective import (
     search_apart,
 )
 
-__all__ = ["SWARM_COMPILER_OPTIONS", "swarm_program", "initial_draws"]
+__all__ = ["SWARM_COMPILER_OPTIONS", "swarm_program"]
 
 
 #: The swarm program's: also ``min``/``max`` (and so ``clip``) as single instructions,
@@ -74,7 +73,7 @@ def swarm_program(
 ):
     """Run ``num_steps`` PSO steps of every swarm of every curve; swarms whose ``step`` is 0
     start fresh.  Per curve (leading axis): ``keys`` and ``draws``, each swarm's run key
-    data and initial draws (:func:`initial_draws`), ``state``, ``feet`` (the
+    data and initial draws (:func:`~swarmcurves_jax.draws.initial_draws`), ``state``, ``feet`` (the
     last search's starts, (swarms, P, N) floats; ``()`` when ``search_every`` is 1),
     ``boxes``, ``seeds``, ``points`` (padded to a bucket length), ``mask`` (1 on real
     points) and their ``polyline`` (:func:`~swarmcurves_jax.excursions.data_segments`);
@@ -150,31 +149,3 @@ def swarm_program(
 
     per_curve = (keys, draws, state, feet, boxes, seeds, points, mask, polyline)
     return over_curves(one_curve, per_curve, (shared, first), mesh, batch)
-
-
-@functools.partial(
-    jax.jit,
-    static_argnames=("num_particles", "size", "dtype"),
-    compiler_options={"xla_backend_optimization_level": 1},
-)
-def initial_draws(key_data, pairs, *, num_particles, size, dtype):
-    """Every swarm's run key data and its initial positions' U[0, 1) draws, per curve:
-    (curves, swarms, 2) uint32 and (curves, swarms, num_particles, size).
-
-    A swarm's key is its curve's key folded with its degree and count, so its random
-    stream depends neither on the other swarms nor on the other curves of the call.
-    A program of its own, run while the swarm programs trace: threefry compiled into each
-    swarm program took about 1 s of its compilation on XLA:CPU, for work done once per
-    call.  Integer hashing and exact conversions, so LLVM's level 1 gives the same bits
-    and compiles in 0.33 s against 0.78 s, running as fast (measured at W1's shapes).
-    """
-
-    def one(key_data, pair):
-        key = jax.random.fold_in(
-            jax.random.fold_in(jax.random.wrap_key_data(key_data), pair[0]), pair[1]
-        )
-        init_key, run_key = jax.random.split(key)
-        u = jax.random.uniform(init_key, (num_particles, size), dtype=dtype)
-        return jax.random.key_data(run_key), u
-
-    return jax.vmap(jax.vmap(one, (None, 0)), (0, None))(key_data, pairs)
