@@ -34,6 +34,7 @@ from __future__ import annotations
 import contextlib
 import enum
 import functools
+import gc
 import hashlib
 import os
 import threading
@@ -148,8 +149,42 @@ def program(jitted, compiler_options: dict, *args, compile_now: bool = False, **
     With a cache folder, it is the exported program: read from the folder, or exported
     there once (atomically); the call is then ``jax.jit(exported.call, ...)``, whose
     compilation JAX's cache keeps.  On one device, or on a ``mesh`` of this process's
-    devices (a mesh over several processes keeps the traced program).
+    devices (a mesh over several processes keeps the traced program).  Made with Python's
+    cyclic garbage collector held off (:func:`collector_off`).
     """
+    with collector_off():
+        return _program(jitted, compiler_options, *args, compile_now=compile_now, **static)
+
+
+_collector = {"holders": 0, "was_on": False}
+_collector_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def collector_off():
+    """Python's cyclic garbage collector held off inside, and back as it was after.
+
+    Tracing a program allocates hundreds of thousands of short-lived objects, and CPython
+    collects every 700 allocations, now and then walking every object JAX holds: 300
+    collections, 0.33 s of a fresh process's first ``fit(f4)`` (cache off), against 17 and
+    0.02 s held off.  Reference counting frees the tracer's objects as it goes; the cycles
+    it leaves are collected once the collector is back.  Counted, as two threads may make
+    programs at once: the last one out turns it back on, if it was on."""
+    with _collector_lock:
+        if _collector["holders"] == 0:
+            _collector["was_on"] = gc.isenabled()
+            gc.disable()
+        _collector["holders"] += 1
+    try:
+        yield
+    finally:
+        with _collector_lock:
+            _collector["holders"] -= 1
+            if _collector["holders"] == 0 and _collector["was_on"]:
+                gc.enable()
+
+
+def _program(jitted, compiler_options: dict, *args, compile_now: bool = False, **static):
     folder = cache_dir()
     mesh = static.get("mesh")
     if folder is None or (mesh is not None and mesh.is_multi_process):

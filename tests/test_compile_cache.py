@@ -1,11 +1,13 @@
 """Compiled programs are kept across processes by default, read back, and a damaged entry
 costs a compilation, not the fit."""
 
+import gc
 import json
 import os
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import jax
@@ -266,3 +268,52 @@ def test_a_folder_that_fails_a_read_or_write_costs_a_warning_not_the_fit(
     np.testing.assert_array_equal(call(np.zeros(3, np.float32)), np.ones(3, np.float32))
     written = [p.name.split("-")[0] for p in (tmp_path / "exported").iterdir()]
     assert written == ["plus_one"] * files
+
+
+def test_the_collector_is_held_off_while_programs_are_made_and_restored_after():
+    """Held off while any holder is inside, by two threads at once too; back as it was."""
+    entered, leave = threading.Barrier(2), threading.Event()
+
+    def hold():
+        with compile_cache.collector_off():
+            entered.wait()
+            leave.wait()
+
+    assert gc.isenabled()
+    thread = threading.Thread(target=hold)
+    thread.start()
+    with compile_cache.collector_off():
+        entered.wait()
+        assert not gc.isenabled()
+    assert not gc.isenabled()  # the thread still holds it
+    leave.set()
+    thread.join()
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with compile_cache.collector_off():
+            pass
+        assert not gc.isenabled()  # left off, as it was
+    finally:
+        gc.enable()
+    with pytest.raises(RuntimeError, match="inside"):
+        with compile_cache.collector_off():
+            raise RuntimeError("inside")
+    assert gc.isenabled()
+
+
+def test_a_fit_makes_its_programs_with_the_collector_off(monkeypatch):
+    """Every program of a fit is traced and lowered with the collector held off, and the
+    collector is on again after the fit."""
+    seen = []
+    trace = jax.stages.Traced.lower
+
+    def lower(self, *args, **kwargs):
+        seen.append(gc.isenabled())
+        return trace(self, *args, **kwargs)
+
+    monkeypatch.setattr(jax.stages.Traced, "lower", lower)
+    u = np.linspace(0, 1, 50)
+    fit(np.c_[u, u**2], cps=[5], particles=8, iterations=20, seed=2)
+    assert seen and not any(seen)
+    assert gc.isenabled()
