@@ -39,7 +39,8 @@ def initial_draws(key_data, pairs, *, num_particles: int, size: int, dtype):
     keys = np.asarray(key_data, np.uint32)[:, None, :]  # (curves, 1, 2)
     pairs = np.asarray(pairs).astype(np.uint32)
     keys = _fold_in(_fold_in(keys, pairs[:, 0]), pairs[:, 1])  # (curves, swarms, 2)
-    init_keys, run_keys = _hash(keys, np.uint32([0, 0]), np.uint32([0, 1]))  # split in two
+    # split in two: JAX's key i is the key hashed at the counter (0, i), as fold_in hashes
+    init_keys, run_keys = (_fold_in(keys, np.full(keys.shape[:-1], i, np.uint32)) for i in (0, 1))
     return run_keys, _uniform(init_keys, (num_particles, size), np.dtype(dtype))
 
 
@@ -62,12 +63,6 @@ def threefry2x32(k0, k1, x0, x1):
         x0 = x0 + ks[(block + 1) % 3]
         x1 = x1 + ks[(block + 2) % 3] + np.uint32(block + 1)
     return x0, x1
-
-
-def _hash(keys, hi, lo):
-    """``keys`` (..., 2) hashed at the counters ``(hi, lo)`` (n,): (..., n, 2)."""
-    x0, x1 = threefry2x32(keys[..., :1], keys[..., 1:], hi, lo)
-    return tuple(np.moveaxis(np.stack([x0, x1], -1), -2, 0))
 
 
 def _fold_in(keys, data):
